@@ -1,0 +1,101 @@
+"""Pictures without a display (matplotlib, Agg): meshes with their boundary, 2D currents."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
+
+
+def normal_colors(normals: np.ndarray) -> np.ndarray:
+    """The paper's colouring: the (unit) current direction mapped to RGB, (n + 1) / 2. (N, 3) → (N, 3)."""
+    n = normals / np.linalg.norm(normals, axis=-1, keepdims=True).clip(1e-12)
+    return np.clip(0.5 * (n + 1.0), 0.0, 1.0)
+
+
+def plot_mesh(
+    mesh: trimesh.Trimesh,
+    loops: list[np.ndarray] | None = None,
+    path: str | Path | None = None,
+    title: str | None = None,
+    elev: float = 25.0,
+    azim: float = 35.0,
+    size: float = 5.0,
+    max_faces: int = 60000,
+):
+    """A shaded mesh coloured by its normals (the current's direction) with Γ drawn in black. → Figure."""
+    fig = plt.figure(figsize=(size, size), dpi=120)
+    ax = fig.add_subplot(projection="3d")
+    if len(mesh.faces):
+        m = mesh
+        if len(m.faces) > max_faces:  # keep pictures quick: the eye does not need every face
+            keep = np.random.default_rng(0).choice(len(m.faces), max_faces, replace=False)
+            m = trimesh.Trimesh(m.vertices, m.faces[keep], process=False)
+        light = np.array([0.3, 0.4, 0.85])
+        light /= np.linalg.norm(light)
+        shade = 0.55 + 0.45 * np.abs(m.face_normals @ light)
+        colors = normal_colors(m.face_normals) * shade[:, None]
+        ax.add_collection3d(Poly3DCollection(m.triangles, facecolors=colors, edgecolors="none"))
+    pts = [np.asarray(mesh.vertices)] if len(mesh.vertices) else []
+    for loop in loops or []:
+        closed = np.concatenate([loop, loop[:1]])
+        ax.plot(*closed.T, color="black", linewidth=1.5)
+        pts.append(loop)
+    if pts:
+        allp = np.concatenate(pts)
+        c, r = allp.mean(0), 0.55 * (allp.max(0) - allp.min(0)).max()
+        ax.set_xlim(c[0] - r, c[0] + r)
+        ax.set_ylim(c[1] - r, c[1] + r)
+        ax.set_zlim(c[2] - r, c[2] + r)
+    ax.view_init(elev=elev, azim=azim)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path)
+        plt.close(fig)
+    return fig
+
+
+def plot_current_2d(
+    f_grid: np.ndarray,
+    alpha_grid: np.ndarray | None,
+    curves: list[np.ndarray],
+    poles: np.ndarray,
+    signs: np.ndarray,
+    path: str | Path | None = None,
+    title: str | None = None,
+):
+    """Paper Fig. 3: f as a density plot, α as arrows, the extracted curve, the boundary points.
+
+    f_grid (R, R) on [-1, 1]² with axis 0 = x; alpha_grid (r, r, 2) on a coarser grid or None.
+    """
+    fig, ax = plt.subplots(figsize=(5, 5), dpi=120)
+    ax.imshow(f_grid.T, origin="lower", extent=(-1, 1, -1, 1), cmap="coolwarm")
+    if alpha_grid is not None:
+        r = alpha_grid.shape[0]
+        g = np.linspace(-1, 1, r)
+        gx, gy = np.meshgrid(g, g, indexing="ij")
+        a = alpha_grid / np.linalg.norm(alpha_grid, axis=-1, keepdims=True).clip(1e-12)
+        ax.quiver(gx, gy, a[..., 0], a[..., 1], color="0.25", scale=2.2 * r, width=0.003)
+    for c in curves:
+        ax.plot(c[:, 0], c[:, 1], color="black", linewidth=2)
+    ax.scatter(poles[:, 0], poles[:, 1], c=np.where(signs > 0, "tab:red", "tab:blue"), s=40, zorder=3)
+    ax.set_xlim(-1, 1)
+    ax.set_ylim(-1, 1)
+    ax.set_aspect("equal")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path)
+        plt.close(fig)
+    return fig

@@ -1,0 +1,275 @@
+"""Boundary curves Γ: the paper's knots and links, circles, curve files, and their validation.
+
+A 3D boundary is a list of closed polygonal loops, each an (M, 3) tensor whose vertex order is the
+orientation; the last vertex connects to the first. A 2D boundary is a set of signed points.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from deepcurrents.errors import UserInputError
+
+log = logging.getLogger(__name__)
+
+
+class BoundaryError(UserInputError):
+    """A boundary (curve file, named curve or point set) that cannot be used; the message says why."""
+
+
+def _param(n: int) -> np.ndarray:
+    return 2.0 * np.pi * np.arange(n) / n
+
+
+def circle(
+    radius: float = 0.6,
+    center: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0),
+    n: int = 100,
+) -> np.ndarray:
+    """A circle of ``n`` vertices, counter-clockwise seen from the tip of ``normal``. → (n, 3)."""
+    nrm = np.asarray(normal, dtype=np.float64)
+    nrm = nrm / np.linalg.norm(nrm)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(nrm[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(nrm, np.cross(helper, nrm))
+    u /= np.linalg.norm(u)
+    v = np.cross(nrm, u)
+    t = _param(n)
+    return np.asarray(center) + radius * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+
+
+def trefoil(n: int = 100) -> list[np.ndarray]:
+    """The authors' trefoil: (1/6)(sin t + 2 sin 2t, cos t − 2 cos 2t, −sin 3t)."""
+    t = _param(n)
+    pts = np.stack([np.sin(t) + 2 * np.sin(2 * t), np.cos(t) - 2 * np.cos(2 * t), -np.sin(3 * t)], 1) / 6.0
+    return [pts]
+
+
+def hopf_link(n: int = 100) -> list[np.ndarray]:
+    """Circles of radius 0.6 centred at (∓0.3, 0, 0), one in the xy-plane, one in the xz-plane."""
+    t = _param(n)
+    c, s, z = 0.6 * np.cos(t), 0.6 * np.sin(t), np.zeros(n)
+    return [np.stack([c - 0.3, s, z], 1), np.stack([c + 0.3, z, s], 1)]
+
+
+def borromean_rings(n: int = 100) -> list[np.ndarray]:
+    """Three ellipses, semi-axes 0.6 and 0.3, in the three coordinate planes, cyclically permuted."""
+    t = _param(n)
+    a, b, z = 0.6 * np.cos(t), 0.3 * np.sin(t), np.zeros(n)
+    return [np.stack([a, b, z], 1), np.stack([z, a, b], 1), np.stack([b, z, a], 1)]
+
+
+NAMED_CURVES = {
+    "trefoil": trefoil,
+    "hopf": hopf_link,
+    "hopf_link": hopf_link,
+    "borromean": borromean_rings,
+    "borromean_rings": borromean_rings,
+    "circle": lambda n=100: [circle(0.6, n=n)],
+}
+
+
+def read_curve_file(path: str | Path) -> list[np.ndarray]:
+    """Loops from a file: ``.obj`` polylines (one ``l`` element per loop, ``v`` vertices), or ``.txt`` /
+    ``.npy`` with one ``x y z`` row per vertex of a single loop. A repeated first vertex at the end of a
+    loop is dropped. Raises BoundaryError with one sentence for unreadable or malformed files."""
+    path = Path(path)
+    if not path.exists():
+        raise BoundaryError(f"Curve file '{path}' does not exist.")
+    if path.is_dir():
+        raise BoundaryError(f"Curve file '{path}' is a directory, not a file.")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".obj":
+            loops = _read_obj_polylines(path)
+        elif suffix == ".npy":
+            loops = [np.load(path, allow_pickle=False).astype(np.float64)]
+        elif suffix in (".txt", ".xyz", ".csv"):
+            text = path.read_text()
+            rows = [ln for ln in text.replace(",", " ").splitlines() if ln.strip() and not ln.startswith("#")]
+            loops = [np.array([[float(v) for v in ln.split()] for ln in rows], dtype=np.float64)] if rows else []
+        else:
+            raise BoundaryError(
+                f"Curve file '{path}' has unsupported extension '{suffix}' (use .obj, .txt or .npy)."
+            )
+    except BoundaryError:
+        raise
+    except (OSError, ValueError, UnicodeDecodeError) as err:
+        raise BoundaryError(f"Curve file '{path}' could not be read: {err}.") from err
+    if not loops or all(len(loop) == 0 for loop in loops):
+        raise BoundaryError(f"Curve file '{path}' contains no curve vertices.")
+    for i, loop in enumerate(loops):
+        if loop.ndim != 2 or loop.shape[1] != 3:
+            raise BoundaryError(
+                f"Curve file '{path}': loop {i} must have 3 coordinates per vertex, got shape {loop.shape}."
+            )
+    return loops
+
+
+def _read_obj_polylines(path: Path) -> list[np.ndarray]:
+    verts: list[list[float]] = []
+    lines: list[list[int]] = []
+    for raw in path.read_text().splitlines():
+        parts = raw.split("#", 1)[0].split()
+        if not parts:
+            continue
+        if parts[0] == "v":
+            verts.append([float(x) for x in parts[1:4]])
+        elif parts[0] == "l":
+            lines.append([int(tok.split("/")[0]) for tok in parts[1:]])
+    if not verts:
+        return []
+    v = np.asarray(verts, dtype=np.float64)
+    if not lines:  # vertices only: one loop in file order
+        return [v]
+    loops = []
+    for idx in lines:
+        idx = [i - 1 if i > 0 else len(v) + i for i in idx]
+        if min(idx) < 0 or max(idx) >= len(v):
+            raise BoundaryError(f"Curve file '{path}' has an 'l' element referring to a missing vertex.")
+        loops.append(v[idx])
+    return _join_segments(loops)
+
+
+def _join_segments(pieces: list[np.ndarray]) -> list[np.ndarray]:
+    """Joins 2-vertex ``l`` elements (as many exporters write) into loops; longer ones are loops already."""
+    if not all(len(p) == 2 for p in pieces):
+        return pieces
+    loops, remaining = [], [list(map(tuple, p)) for p in pieces]
+    while remaining:
+        chain = list(remaining.pop(0))
+        grew = True
+        while grew:
+            grew = False
+            for k, (a, b) in enumerate(remaining):
+                if np.allclose(a, chain[-1]):
+                    chain.append(b)
+                    remaining.pop(k)
+                    grew = True
+                    break
+        loops.append(np.asarray(chain))
+    return loops
+
+
+@dataclass
+class Boundary:
+    """A validated 3D boundary: closed loops (float64 numpy, each (M_i, 3)) and where they came from."""
+
+    loops: list[np.ndarray]
+    name: str
+
+    def tensors(self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> list[torch.Tensor]:
+        return [torch.as_tensor(loop, dtype=dtype, device=device) for loop in self.loops]
+
+    @property
+    def num_vertices(self) -> int:
+        return sum(len(loop) for loop in self.loops)
+
+    def length(self) -> float:
+        return polyline_length(self.loops)
+
+
+def validate_loops(loops: list[np.ndarray], source: str, domain: float = 1.0) -> list[np.ndarray]:
+    """Checks and cleans closed loops; raises BoundaryError with one sentence naming ``source``.
+
+    Drops a repeated closing vertex and consecutive duplicate vertices (with a warning); rejects NaN/inf,
+    loops with fewer than 3 distinct vertices, collinear (zero-area) loops and vertices outside the
+    open domain (−domain, domain)^3.
+    """
+    clean = []
+    for i, loop in enumerate(loops):
+        name = f"{source}" + (f" (loop {i})" if len(loops) > 1 else "")
+        loop = np.asarray(loop, dtype=np.float64)
+        if loop.ndim != 2 or loop.shape[1] != 3:
+            raise BoundaryError(f"Boundary {name} must be an (M, 3) array of vertices, got shape {loop.shape}.")
+        if not np.isfinite(loop).all():
+            raise BoundaryError(f"Boundary {name} has NaN or infinite coordinates.")
+        seg = np.linalg.norm(np.roll(loop, -1, 0) - loop, axis=1)
+        scale = max(float(np.abs(loop).max()), 1e-12)
+        dup = seg <= 1e-9 * scale
+        if dup.any():
+            log.warning("Boundary %s: dropped %d consecutive duplicate vertices.", name, int(dup.sum()))
+            loop = loop[~dup]
+        if len(loop) < 3:
+            raise BoundaryError(
+                f"Boundary {name} has {len(loop)} distinct vertices; a closed loop needs at least 3."
+            )
+        centred = loop - loop.mean(0)
+        sv = np.linalg.svd(centred, compute_uv=False)
+        if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+            raise BoundaryError(f"Boundary {name} is degenerate: its vertices are collinear.")
+        if np.abs(loop).max() >= domain:
+            raise BoundaryError(
+                f"Boundary {name} has vertices outside the domain [-{domain:g}, {domain:g}]^3 "
+                f"(max |coordinate| = {np.abs(loop).max():.3g}); rescale the curve."
+            )
+        clean.append(loop)
+    if not clean:
+        raise BoundaryError(f"Boundary {source} has no loops.")
+    return clean
+
+
+def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1.0) -> Boundary:
+    """A boundary from a name in NAMED_CURVES (sampled with ``n`` vertices per loop) or a curve file path.
+
+    ``scale`` multiplies the coordinates (handy to fit a file into the domain)."""
+    key = str(spec).strip()
+    if key.lower() in NAMED_CURVES:
+        loops = NAMED_CURVES[key.lower()](n)
+        name = key.lower()
+    else:
+        if not any(key.lower().endswith(ext) for ext in (".obj", ".txt", ".npy", ".xyz", ".csv")):
+            raise BoundaryError(
+                f"data.curve='{key}' is neither a known curve ({', '.join(sorted(NAMED_CURVES))}) nor a "
+                "curve file (.obj, .txt, .npy)."
+            )
+        loops = read_curve_file(key)
+        name = Path(key).stem
+    loops = [np.asarray(loop, dtype=np.float64) * scale for loop in loops]
+    return Boundary(validate_loops(loops, f"'{key}'", domain=domain), name)
+
+
+@dataclass
+class PointBoundary:
+    """A validated 2D boundary: points (P, 2) and signs (P,) of ±1."""
+
+    points: np.ndarray
+    signs: np.ndarray
+    name: str = "points"
+
+    def tensors(self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu"):
+        return (
+            torch.as_tensor(self.points, dtype=dtype, device=device),
+            torch.as_tensor(self.signs, dtype=dtype, device=device),
+        )
+
+
+def validate_points(points, signs, source: str = "data.points", domain: float = 1.0) -> PointBoundary:
+    """Checks a 2D boundary: finite points strictly inside the domain, signs ±1 summing to zero."""
+    pts = np.asarray(points, dtype=np.float64)
+    sg = np.asarray(signs, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0:
+        raise BoundaryError(f"Boundary {source} must be a non-empty list of [x, y] points, got shape {pts.shape}.")
+    if sg.shape != (len(pts),) or not np.all(np.isin(sg, (-1.0, 1.0))):
+        raise BoundaryError(f"Boundary {source}: signs must be one +1 or -1 per point.")
+    if not np.isfinite(pts).all():
+        raise BoundaryError(f"Boundary {source} has NaN or infinite coordinates.")
+    if np.abs(pts).max() >= domain:
+        raise BoundaryError(f"Boundary {source} has points outside the domain [-{domain:g}, {domain:g}]^2.")
+    if sg.sum() != 0:
+        raise BoundaryError(
+            f"Boundary {source}: signs must sum to zero (every curve starts at a -1 point and ends at a +1 point)."
+        )
+    if len(pts) > 1 and (np.linalg.norm(pts[:, None] - pts[None], axis=-1) + np.eye(len(pts))).min() < 1e-9:
+        raise BoundaryError(f"Boundary {source} has coincident points.")
+    return PointBoundary(pts, sg)
+
+
+def polyline_length(loops: list[np.ndarray]) -> float:
+    """Total length of closed polygonal loops."""
+    return float(sum(np.linalg.norm(np.roll(lp, -1, 0) - lp, axis=1).sum() for lp in loops))

@@ -1,0 +1,28 @@
+"""Losses: the current (mass) loss under a metric B, and the surface hinge loss."""
+
+from __future__ import annotations
+
+import torch
+
+
+def apply_metric(omega: torch.Tensor, metric: torch.Tensor | None) -> torch.Tensor:
+    """B_x ω(x). omega: (N, d); metric: None (B = I), (N,) scalar weights, or (N, d, d) matrices."""
+    if metric is None:
+        return omega
+    if metric.dim() == 1:
+        return metric.unsqueeze(-1) * omega
+    return torch.einsum("nij,nj->ni", metric, omega)
+
+
+def current_loss(omega: torch.Tensor, metric: torch.Tensor | None = None) -> torch.Tensor:
+    """L_curr = E_x |B_x ω(x)| (paper eq. massmin-deep-metric). omega: (N, d) → scalar."""
+    return apply_metric(omega, metric).norm(dim=-1).mean()
+
+
+def surface_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, margin: float = 0.01) -> torch.Tensor:
+    """L_surf = E[(δ − f(y − εn) + f(y + εn))^+]: f must drop by at least δ across the target along n.
+
+    f_minus = f(y − ε n_y), f_plus = f(y + ε n_y), each (M,) → scalar. The sign is the paper's; it agrees
+    with the orientation of Γ taken from the mesh's boundary loops (see data/ for how Γ is oriented).
+    """
+    return torch.relu(margin - f_minus + f_plus).mean()

@@ -1,0 +1,101 @@
+"""The neural current ω = ∇f_θ + alpha_scale · α_Γ (paper eq. alpha-hodge)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+from deepcurrents.errors import ConfigError
+
+from deepcurrents.geometry import biot_savart, biot_savart_2d
+from deepcurrents.nn.fourier import FourierFeatures
+from deepcurrents.nn.mlp import FieldMLP
+
+
+def spatial_gradient(f: torch.Tensor, x: torch.Tensor, create_graph: bool) -> torch.Tensor:
+    """∇_x f by autograd. f: (N,) computed from x: (N, d) with requires_grad → (N, d)."""
+    (grad,) = torch.autograd.grad(f.sum(), x, create_graph=create_graph)
+    return grad
+
+
+class NeuralCurrent(nn.Module):
+    """A single current ω = ∇f_θ + alpha_scale·α_Γ on [-1, 1]^d with a fixed boundary Γ.
+
+    3D: ``loops`` is a list of (M_i, 3) closed loops. 2D: ``poles`` (P, 2) with ``signs`` (P,).
+    The boundary is kept as buffers, so it travels with the module's device and its state_dict.
+    """
+
+    def __init__(
+        self,
+        dim: int = 3,
+        loops: Sequence[torch.Tensor] | None = None,
+        poles: torch.Tensor | None = None,
+        signs: torch.Tensor | None = None,
+        num_frequencies: int = 1024,
+        sigma: float = 2.0,
+        rff: bool = True,
+        width: int = 256,
+        depth: int = 4,
+        activation: str = "softplus",
+        alpha_scale: float = 1e-3,
+        rff_seed: int | None = None,
+    ):
+        super().__init__()
+        if dim not in (2, 3):
+            raise ConfigError(f"model.dim={dim} must be 2 or 3.")
+        self.dim = dim
+        self.alpha_scale = alpha_scale
+        self.encoding = FourierFeatures(dim, num_frequencies, sigma, enabled=rff, seed=rff_seed)
+        self.mlp = FieldMLP(self.encoding.out_dim, width, depth, activation)
+        if dim == 3:
+            if not loops:
+                raise ConfigError("A 3D current needs at least one boundary loop.")
+            self.register_buffer("vertices", torch.cat([torch.as_tensor(lp) for lp in loops]).float())
+            self.register_buffer("loop_sizes", torch.tensor([len(lp) for lp in loops], dtype=torch.long))
+        else:
+            if poles is None or signs is None:
+                raise ConfigError("A 2D current needs boundary points and their signs.")
+            self.register_buffer("poles", torch.as_tensor(poles).float())
+            self.register_buffer("signs", torch.as_tensor(signs).float())
+
+    @property
+    def loops(self) -> list[torch.Tensor]:
+        """The boundary loops, list of (M_i, 3) (3D only)."""
+        return list(torch.split(self.vertices, self.loop_sizes.tolist()))
+
+    def f(self, x: torch.Tensor) -> torch.Tensor:
+        """The scalar field f_θ. (N, d) → (N,)."""
+        return self.mlp(self.encoding(x)).squeeze(-1)
+
+    def alpha(self, x: torch.Tensor) -> torch.Tensor:
+        """alpha_scale · α_Γ(x), closed form. (N, d) → (N, d)."""
+        if self.dim == 3:
+            field = biot_savart(x, self.loops)
+        else:
+            field = biot_savart_2d(x, self.poles, self.signs)
+        return self.alpha_scale * field
+
+    def forward(self, x: torch.Tensor, create_graph: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """(f, ω) at points x: (N, d) → ((N,), (N, d)). ``create_graph`` for training (double backward)."""
+        with torch.enable_grad():
+            x = x.detach().requires_grad_(True)
+            f = self.f(x)
+            grad_f = spatial_gradient(f, x, create_graph=create_graph)
+        if not create_graph:
+            f, grad_f = f.detach(), grad_f.detach()
+        return f, grad_f + self.alpha(x.detach())
+
+    @torch.no_grad()
+    def evaluate(self, x: torch.Tensor, chunk_size: int = 1 << 15, omega: bool = True):
+        """f (and ω) at many points in chunks, without keeping graphs. (N, d) → (N,) [, (N, d)]."""
+        fs, ws = [], []
+        for chunk in torch.split(x, chunk_size):
+            if omega:
+                f, w = self(chunk, create_graph=False)
+                ws.append(w)
+            else:
+                f = self.f(chunk)
+            fs.append(f)
+        return (torch.cat(fs), torch.cat(ws)) if omega else torch.cat(fs)

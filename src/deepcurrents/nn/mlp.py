@@ -1,0 +1,30 @@
+"""The field MLP h_θ that decodes features to the scalar f."""
+
+from __future__ import annotations
+
+from torch import nn
+
+from deepcurrents.errors import ConfigError
+
+ACTIVATIONS = {"softplus": nn.Softplus, "relu": nn.ReLU}
+
+
+class FieldMLP(nn.Module):
+    """``depth`` hidden layers of ``width`` units with softplus (paper) or ReLU (ablation), scalar output.
+
+    (N, in_dim) → (N, 1). The paper's network: in_dim 2048, width 256, depth 4 → 722,177 weights.
+    """
+
+    def __init__(self, in_dim: int, width: int = 256, depth: int = 4, activation: str = "softplus"):
+        super().__init__()
+        if activation not in ACTIVATIONS:
+            raise ConfigError(f"model.activation='{activation}' is not one of {sorted(ACTIVATIONS)}.")
+        layers: list[nn.Module] = []
+        dims = [in_dim] + [width] * depth
+        for a, b in zip(dims[:-1], dims[1:]):
+            layers += [nn.Linear(a, b), ACTIVATIONS[activation]()]
+        layers.append(nn.Linear(dims[-1], 1))
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x):
+        return self.net(x)

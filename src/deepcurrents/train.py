@@ -1,0 +1,116 @@
+"""Training entry point: config → DataModule → LightningModule → Trainer → final evaluation.
+
+The project's ``train.py`` is a thin Hydra wrapper around :func:`train`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+import hydra
+import lightning as L
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
+
+from deepcurrents.checkpointing import AtomicCheckpointIO
+from deepcurrents.config import validate_config
+from deepcurrents.errors import NonFiniteLossError, UserInputError
+from deepcurrents.models.current_module import boundary_spec
+
+log = logging.getLogger("deepcurrents")
+
+
+def output_dir(cfg: DictConfig) -> Path:
+    """The run directory: Hydra's when running under Hydra, else ``cfg.paths.output_dir``."""
+    if HydraConfig.initialized():
+        return Path(HydraConfig.get().runtime.output_dir)
+    return Path(cfg.paths.output_dir)
+
+
+def build_logger(cfg: DictConfig, out_dir: Path):
+    if cfg.get("logger") is None:
+        return False
+    kwargs = {}
+    if "save_dir" in cfg.logger:
+        kwargs["save_dir"] = str(out_dir)
+    return hydra.utils.instantiate(cfg.logger, **kwargs)
+
+
+def build_callbacks(cfg: DictConfig, out_dir: Path) -> list:
+    callbacks = []
+    for name, cb in (cfg.get("callbacks") or {}).items():
+        if cb is None:
+            continue
+        kwargs = {"dirpath": str(out_dir / "checkpoints")} if name == "model_checkpoint" else {}
+        callbacks.append(hydra.utils.instantiate(cb, **kwargs))
+    return callbacks
+
+
+def build(cfg: DictConfig):
+    """The DataModule and the LightningModule of a run (validates the inputs; trains nothing)."""
+    datamodule = hydra.utils.instantiate(cfg.data, _convert_="all")
+    spec = boundary_spec(datamodule.boundary) if hasattr(datamodule, "boundary") else None
+    kwargs = {"boundary": spec} if spec is not None else {}
+    extra = getattr(datamodule, "model_kwargs", None)
+    if callable(extra):
+        kwargs.update(extra())
+    module = hydra.utils.instantiate(cfg.model, _convert_="all", **kwargs)
+    module.run_config = OmegaConf.to_container(cfg, resolve=True)
+    return datamodule, module
+
+
+def train(cfg: DictConfig) -> dict[str, Any] | None:
+    """Trains and evaluates one run; returns its metrics (None on non-zero DDP ranks)."""
+    validate_config(cfg)
+    out_dir = output_dir(cfg)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    L.seed_everything(int(cfg.seed), workers=True, verbose=False)
+    datamodule, module = build(cfg)
+    trainer: L.Trainer = hydra.utils.instantiate(
+        cfg.trainer,
+        logger=build_logger(cfg, out_dir),
+        callbacks=build_callbacks(cfg, out_dir),
+        plugins=[AtomicCheckpointIO()],
+        default_root_dir=str(out_dir),
+    )
+    ckpt_path = cfg.get("ckpt_path")
+    if ckpt_path is not None and not Path(ckpt_path).is_file():
+        raise UserInputError(f"ckpt_path='{ckpt_path}' does not exist or is not a file.")
+    trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
+    if trainer.interrupted:
+        log.warning("Training was interrupted; evaluating the model as it is.")
+    if not trainer.is_global_zero:
+        return None
+    metrics = module.final_evaluation(out_dir)
+    log.info("metrics: %s", json.dumps(metrics))
+    for lg in trainer.loggers:
+        lg.log_metrics({f"final/{k}": v for k, v in metrics.items() if isinstance(v, (int, float))},
+                       step=int(module.global_step))
+        if hasattr(lg, "experiment") and hasattr(lg.experiment, "summary"):
+            lg.experiment.summary.update({f"final/{k}": v for k, v in metrics.items()})
+        lg.finalize("success")
+    return metrics
+
+
+def run_cli(cfg: DictConfig) -> float | None:
+    """Runs :func:`train`, turning user errors into one sentence and a non-zero exit (no traceback).
+
+    Returns the value an Optuna sweep minimises (``cfg.objective``), if set.
+    """
+    try:
+        metrics = train(cfg)
+    except UserInputError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    except NonFiniteLossError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(3)
+    objective = cfg.get("objective")
+    if metrics is not None and objective:
+        value = metrics.get(objective)
+        return float(value) if value is not None else float("inf")
+    return None
