@@ -63,11 +63,18 @@ def build(cfg: DictConfig):
     return datamodule, module
 
 
-def train(cfg: DictConfig) -> dict[str, Any] | None:
-    """Trains and evaluates one run; returns its metrics (None on non-zero DDP ranks)."""
-    validate_config(cfg)
-    out_dir = output_dir(cfg)
+def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None:
+    """Trains and evaluates one run into ``out_dir`` (default: the run directory); returns its metrics
+    (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (deepcurrents.suites).
+    """
+    out_dir = Path(out_dir) if out_dir is not None else output_dir(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)
+    if cfg.get("suite"):
+        from deepcurrents.suites import run_suite
+
+        run_suite(cfg, out_dir)
+        return None
+    validate_config(cfg)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     datamodule, module = build(cfg)
     trainer: L.Trainer = hydra.utils.instantiate(
@@ -81,6 +88,8 @@ def train(cfg: DictConfig) -> dict[str, Any] | None:
     if ckpt_path is not None and not Path(ckpt_path).is_file():
         raise UserInputError(f"ckpt_path='{ckpt_path}' does not exist or is not a file.")
     trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
+    # the final state, whatever step it ended on (periodic checkpoints may be older)
+    trainer.save_checkpoint(out_dir / "checkpoints" / "last.ckpt")
     if trainer.interrupted:
         log.warning("Training was interrupted; evaluating the model as it is.")
     if not trainer.is_global_zero:
