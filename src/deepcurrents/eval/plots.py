@@ -73,16 +73,22 @@ def plot_current_2d(
     signs: np.ndarray,
     path: str | Path | None = None,
     title: str | None = None,
+    metric_grid: np.ndarray | None = None,
+    grid_extent: float = 1.0,
 ):
-    """Paper Fig. 3: f as a density plot, α as arrows, the extracted curve, the boundary points.
+    """Paper Fig. 3: f as a density plot, α as arrows, the metric as ellipses, the extracted curve, the
+    boundary points.
 
-    f_grid (R, R) on [-1, 1]² with axis 0 = x; alpha_grid (r, r, 2) on a coarser grid or None.
+    f_grid (R, R) on [-1, 1]² with axis 0 = x; alpha_grid (r, r, 2) and metric_grid (r, r, 2, 2) (the
+    matrices B_x, or None) on a coarser grid whose nodes span [-grid_extent, grid_extent]².
     """
     fig, ax = plt.subplots(figsize=(5, 5), dpi=120)
     ax.imshow(f_grid.T, origin="lower", extent=(-1, 1, -1, 1), cmap="coolwarm")
+    if metric_grid is not None:
+        _metric_ellipses(ax, metric_grid, grid_extent)
     if alpha_grid is not None:
         r = alpha_grid.shape[0]
-        g = np.linspace(-1, 1, r)
+        g = np.linspace(-grid_extent, grid_extent, r)
         gx, gy = np.meshgrid(g, g, indexing="ij")
         a = alpha_grid / np.linalg.norm(alpha_grid, axis=-1, keepdims=True).clip(1e-12)
         ax.quiver(gx, gy, a[..., 0], a[..., 1], color="0.25", scale=2.2 * r, width=0.003)
@@ -99,3 +105,27 @@ def plot_current_2d(
         fig.savefig(path)
         plt.close(fig)
     return fig
+
+
+def _metric_ellipses(ax, metric_grid: np.ndarray, extent: float) -> None:
+    """Paper Fig. 3d: each B_x (r, r, 2, 2) as an ellipse along its eigenvectors, semi-axes ∝ eigenvalues
+    (not to scale: the largest fills 0.45 of a cell; a zero eigenvalue still shows as a thin line)."""
+    from matplotlib.collections import EllipseCollection
+
+    r = metric_grid.shape[0]
+    b = metric_grid.reshape(-1, 2, 2)
+    sym = 0.5 * (b + np.swapaxes(b, 1, 2))
+    vals, vecs = np.linalg.eigh(sym)  # ascending: column 1 is the major axis
+    vals = np.abs(vals)
+    top = vals.max() if vals.size and vals.max() > 0 else 1.0
+    cell = 2.0 * extent / max(r - 1, 1)
+    major = 0.9 * cell * vals[:, 1] / top
+    minor = np.maximum(0.9 * cell * vals[:, 0] / top, 0.06 * cell)
+    angles = np.degrees(np.arctan2(vecs[:, 1, 1], vecs[:, 0, 1]))
+    g = np.linspace(-extent, extent, r)
+    centres = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    keep = major > 0
+    ax.add_collection(EllipseCollection(
+        major[keep], minor[keep], angles[keep], units="xy", offsets=centres[keep],
+        offset_transform=ax.transData, facecolors="none", edgecolors="0.15", linewidths=0.6,
+    ))
