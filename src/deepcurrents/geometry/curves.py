@@ -111,6 +111,19 @@ def read_curve_file(path: str | Path) -> list[np.ndarray]:
     return loops
 
 
+def write_curve_file(path: str | Path, loops: list[np.ndarray]) -> None:
+    """Writes closed loops as an ``.obj`` polyline file that ``read_curve_file`` reads back exactly: ``v``
+    lines, then one ``l`` element per loop (closed implicitly: the last vertex connects to the first)."""
+    lines, base = [], 1
+    for loop in loops:
+        lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(loop, dtype=np.float64)]
+    for loop in loops:
+        idx = range(base, base + len(loop))
+        lines.append("l " + " ".join(map(str, idx)))
+        base += len(loop)
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
 def _read_obj_polylines(path: Path) -> list[np.ndarray]:
     verts: list[list[float]] = []
     lines: list[list[int]] = []
