@@ -101,7 +101,8 @@ class CurrentModule(DeepCurrentsModule):
         metrics[f"mass_{name}"] = mass * scale
         metrics[f"mass_{name}_stderr"] = stderr * scale
         if self.dim == 3:
-            result = extract_surface(self.current, **self.evaluation.get("mesh", {}))
+            result = extract_surface(self.current, **self.mesh_options())
+            self.meshing = result  # subclasses evaluate the same mesh further
             mesh = result.mesh
             loops = [lp.cpu().double().numpy() for lp in self.current.loops]
             metrics["mesh_area"] = float(mesh.area)
@@ -124,6 +125,10 @@ class CurrentModule(DeepCurrentsModule):
             self._plot_2d(curves, out_dir / "current.png")
         (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         return metrics
+
+    def mesh_options(self) -> dict[str, Any]:
+        """Keyword arguments of ``extract_surface`` for the final mesh (reconstruction adds ``bounds``)."""
+        return dict(self.evaluation.get("mesh", {}))
 
     def _plot_2d(self, curves, path: Path) -> None:
         dev = next(self.parameters()).device

@@ -12,10 +12,12 @@ ACTIVATIONS = {"softplus": nn.Softplus, "relu": nn.ReLU}
 class FieldMLP(nn.Module):
     """``depth`` hidden layers of ``width`` units with softplus (paper) or ReLU (ablation), scalar output.
 
-    (N, in_dim) → (N, 1). The paper's network: in_dim 2048, width 256, depth 4 → 722,177 weights.
+    (N, in_dim) → (N, out_dim), out_dim 1 by default.
+    The paper's network: in_dim 2048, width 256, depth 4 → 722,177 weights.
     """
 
-    def __init__(self, in_dim: int, width: int = 256, depth: int = 4, activation: str = "softplus"):
+    def __init__(self, in_dim: int, width: int = 256, depth: int = 4, activation: str = "softplus",
+                 out_dim: int = 1):
         super().__init__()
         if activation not in ACTIVATIONS:
             raise ConfigError(f"model.activation='{activation}' is not one of {sorted(ACTIVATIONS)}.")
@@ -23,7 +25,7 @@ class FieldMLP(nn.Module):
         dims = [in_dim] + [width] * depth
         for a, b in zip(dims[:-1], dims[1:]):
             layers += [nn.Linear(a, b), ACTIVATIONS[activation]()]
-        layers.append(nn.Linear(dims[-1], 1))
+        layers.append(nn.Linear(dims[-1], out_dim))  # out_dim 3: the closest-point baseline
         self.net = nn.Sequential(*layers)
 
     def forward(self, x):
