@@ -14,6 +14,7 @@ from typing import Any
 import hydra
 import lightning as L
 from hydra.core.hydra_config import HydraConfig
+from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.checkpointing import AtomicCheckpointIO
@@ -22,6 +23,20 @@ from deepcurrents.errors import NonFiniteLossError, UserInputError
 from deepcurrents.models.current_module import boundary_spec
 
 log = logging.getLogger("deepcurrents")
+
+
+def instantiate(node: DictConfig, **kwargs):
+    """hydra.utils.instantiate, but a UserInputError raised inside a constructor comes out as itself
+    (Hydra wraps it in an InstantiationException with the target's traceback text)."""
+    try:
+        return hydra.utils.instantiate(node, **kwargs)
+    except InstantiationException as err:
+        cause = err.__cause__
+        while cause is not None and not isinstance(cause, UserInputError):
+            cause = cause.__cause__
+        if cause is not None:
+            raise cause from None
+        raise
 
 
 def output_dir(cfg: DictConfig) -> Path:
@@ -37,7 +52,7 @@ def build_logger(cfg: DictConfig, out_dir: Path):
     kwargs = {}
     if "save_dir" in cfg.logger:
         kwargs["save_dir"] = str(out_dir)
-    return hydra.utils.instantiate(cfg.logger, **kwargs)
+    return instantiate(cfg.logger, **kwargs)
 
 
 def build_callbacks(cfg: DictConfig, out_dir: Path) -> list:
@@ -46,19 +61,19 @@ def build_callbacks(cfg: DictConfig, out_dir: Path) -> list:
         if cb is None:
             continue
         kwargs = {"dirpath": str(out_dir / "checkpoints")} if name == "model_checkpoint" else {}
-        callbacks.append(hydra.utils.instantiate(cb, **kwargs))
+        callbacks.append(instantiate(cb, **kwargs))
     return callbacks
 
 
 def build(cfg: DictConfig):
     """The DataModule and the LightningModule of a run (validates the inputs; trains nothing)."""
-    datamodule = hydra.utils.instantiate(cfg.data, _convert_="all")
+    datamodule = instantiate(cfg.data, _convert_="all")
     spec = boundary_spec(datamodule.boundary) if hasattr(datamodule, "boundary") else None
     kwargs = {"boundary": spec} if spec is not None else {}
     extra = getattr(datamodule, "model_kwargs", None)
     if callable(extra):
         kwargs.update(extra())
-    module = hydra.utils.instantiate(cfg.model, _convert_="all", **kwargs)
+    module = instantiate(cfg.model, _convert_="all", **kwargs)
     module.run_config = OmegaConf.to_container(cfg, resolve=True)
     return datamodule, module
 
@@ -77,7 +92,7 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
     validate_config(cfg)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     datamodule, module = build(cfg)
-    trainer: L.Trainer = hydra.utils.instantiate(
+    trainer: L.Trainer = instantiate(
         cfg.trainer,
         logger=build_logger(cfg, out_dir),
         callbacks=build_callbacks(cfg, out_dir),

@@ -15,7 +15,7 @@ from deepcurrents.nn.mlp import FieldMLP
 
 
 def spatial_gradient(f: torch.Tensor, x: torch.Tensor, create_graph: bool) -> torch.Tensor:
-    """∇_x f by autograd. f: (N,) computed from x: (N, d) with requires_grad → (N, d)."""
+    """∂f/∂x by autograd, per sample. f: (N,) computed row-wise from x: (N, D) with requires_grad → (N, D)."""
     (grad,) = torch.autograd.grad(f.sum(), x, create_graph=create_graph)
     return grad
 
@@ -78,14 +78,26 @@ class NeuralCurrent(nn.Module):
         return self.alpha_scale * field
 
     def forward(self, x: torch.Tensor, create_graph: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
-        """(f, ω) at points x: (N, d) → ((N,), (N, d)). ``create_graph`` for training (double backward)."""
+        """(f, ω) at points x: (N, d) → ((N,), (N, d)). ``create_graph`` for training (double backward).
+
+        ∇f is taken by autograd through the MLP to its input features, then through the Fourier features
+        by their closed-form Jacobian (same numbers as autograd all the way, fewer elementwise passes).
+        """
+        x = x.detach()
         with torch.enable_grad():
-            x = x.detach().requires_grad_(True)
-            f = self.f(x)
-            grad_f = spatial_gradient(f, x, create_graph=create_graph)
+            if self.encoding.enabled:
+                sin, cos = self.encoding.sin_cos(x)
+                features = torch.cat([sin, cos], dim=-1).requires_grad_(True)
+                f = self.mlp(features).squeeze(-1)
+                grad_features = spatial_gradient(f, features, create_graph=create_graph)
+                grad_f = self.encoding.input_gradient(grad_features, sin, cos)
+            else:
+                x_in = x.requires_grad_(True)
+                f = self.mlp(x_in).squeeze(-1)
+                grad_f = spatial_gradient(f, x_in, create_graph=create_graph)
         if not create_graph:
             f, grad_f = f.detach(), grad_f.detach()
-        return f, grad_f + self.alpha(x.detach())
+        return f, grad_f + self.alpha(x)
 
     @torch.no_grad()
     def evaluate(self, x: torch.Tensor, chunk_size: int = 1 << 15, omega: bool = True):

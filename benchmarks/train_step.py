@@ -1,0 +1,152 @@
+"""One training step of the paper network (4096 samples, trefoil): time, matmul FLOPs, and the achieved
+fraction of this machine's own fp32 matrix-multiply rate, measured in the same run.
+
+    python benchmarks/train_step.py [--samples 4096] [--repeats 10] [--device cpu|cuda]
+
+Also measures peak memory of the 2^20-sample mass evaluation. Prints a table and saves JSON under
+benchmarks/results/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import resource
+import statistics
+import time
+from pathlib import Path
+
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from deepcurrents.eval.metrics import mass_estimate
+from deepcurrents.geometry import trefoil
+from deepcurrents.losses import current_loss
+from deepcurrents.nn import NeuralCurrent
+
+
+def sync(device):
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def matmul_rate(device, n=2048, repeats=10) -> float:
+    """Best-of fp32 GEMM rate (FLOP/s) for an n×n×n product, the machine's practical peak."""
+    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
+    for _ in range(2):
+        a @ b
+    sync(device)
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        a @ b
+        sync(device)
+        best = min(best, time.perf_counter() - t)
+    return 2 * n**3 / best
+
+
+class _GlobalOnly:
+    """Stands in for FlopCounterMode's module tracker, whose hooks break autograd.grad (torch 2.13)."""
+
+    parents = {"Global"}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *args):
+        return False
+
+
+def count_flops(fn) -> int:
+    """Matmul-class FLOPs of one call of ``fn`` (torch.utils.flop_counter's registry)."""
+    counter = FlopCounterMode(display=False)
+    counter.mod_tracker = _GlobalOnly()
+    with counter:
+        fn()
+    return counter.get_total_flops()
+
+
+def autograd_omega(model, x):
+    """The reference: ∇f by double-backward autograd all the way through sin/cos (the authors' way)."""
+    x = x.clone().requires_grad_(True)
+    (grad,) = torch.autograd.grad(model.f(x).sum(), x, create_graph=True)
+    return grad + model.alpha(x.detach())
+
+
+def make_step(model, opt, samples, device, variant="ours"):
+    def step():
+        x = torch.rand(samples, 3, device=device) * 2 - 1
+        omega = model(x, create_graph=True)[1] if variant == "ours" else autograd_omega(model, x)
+        loss = current_loss(omega)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        return loss
+    return step
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--samples", type=int, default=4096)
+    ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    ap.add_argument("--skip-memory", action="store_true")
+    args = ap.parse_args()
+    device = torch.device(args.device)
+    torch.manual_seed(0)
+    model = NeuralCurrent(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()]).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=5e-4)
+    steps = {v: make_step(model, opt, args.samples, device, v) for v in ("ours", "autograd")}
+
+    flops = count_flops(steps["ours"])
+    flops_ref = count_flops(steps["autograd"])
+    for step in steps.values():
+        step()
+    # interleave the variants and GEMM-rate timings so that all see the same machine state
+    times: dict[str, list[float]] = {v: [] for v in steps}
+    rates = []
+    for _ in range(args.repeats):
+        rates.append(matmul_rate(device, repeats=3))
+        for name, step in steps.items():
+            sync(device)
+            t = time.perf_counter()
+            step()
+            sync(device)
+            times[name].append(time.perf_counter() - t)
+    step_s = statistics.median(times["ours"])
+    ref_s = statistics.median(times["autograd"])
+    rate = statistics.median(rates)
+    achieved = flops / step_s
+    result = {
+        "device": str(device), "machine": platform.processor() or platform.machine(),
+        "threads": torch.get_num_threads(), "samples": args.samples,
+        "step_ms_median": 1e3 * step_s, "step_ms_min": 1e3 * min(times["ours"]),
+        "autograd_step_ms_median": 1e3 * ref_s, "speedup_vs_autograd": ref_s / step_s,
+        "step_gflop": flops / 1e9, "autograd_step_gflop": flops_ref / 1e9,
+        "achieved_gflops": achieved / 1e9, "gemm_rate_gflops_median": rate / 1e9,
+        "gemm_rate_gflops_best": max(rates) / 1e9,
+        "fraction_of_gemm_rate": achieved / rate,
+        "autograd_fraction_of_gemm_rate": flops_ref / ref_s / rate,
+    }
+    if not args.skip_memory:
+        if device.type == "cuda":
+            torch.cuda.reset_peak_memory_stats()
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        t = time.perf_counter()
+        mass_estimate(model, 1 << 20)
+        result["mass_eval_seconds"] = time.perf_counter() - t
+        if device.type == "cuda":
+            result["mass_eval_peak_mb"] = torch.cuda.max_memory_allocated() / 2**20
+        else:  # growth of the process's peak RSS during the evaluation (an upper bound of its own use)
+            result["mass_eval_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+            result["rss_before_mb"] = before / 1024
+    for k, v in result.items():
+        print(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}")
+    out = Path(__file__).parent / "results"
+    out.mkdir(exist_ok=True)
+    (out / f"train_step_{device.type}.json").write_text(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+"""Biot–Savart fields, solid angles and boundary curves against independent truth."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from deepcurrents.geometry import (
+    BoundaryError,
+    biot_savart,
+    biot_savart_2d,
+    borromean_rings,
+    circle,
+    hopf_link,
+    load_boundary,
+    read_curve_file,
+    solid_angle,
+    trefoil,
+)
+from deepcurrents.geometry.polyline import polyline_hausdorff, project_to_segments
+
+
+def quadrature_biot_savart(points, loop, per_segment=400):
+    """∮ dℓ × r / |r|³ with r = x − ℓ (Gauss–Legendre per segment), the definition the closed form solves."""
+    nodes, weights = np.polynomial.legendre.leggauss(per_segment)
+    s, w = (nodes + 1) / 2, weights / 2
+    a, b = loop, np.roll(loop, -1, 0)
+    out = np.zeros_like(points)
+    for p0, p1 in zip(a, b):
+        seg = p1 - p0
+        q = p0 + s[:, None] * seg  # (K, 3)
+        r = points[:, None, :] - q[None]  # from the curve to x
+        integrand = np.cross(np.broadcast_to(seg, r.shape), r) / np.linalg.norm(r, axis=-1, keepdims=True) ** 3
+        out += (w[None, :, None] * integrand).sum(1)
+    return out
+
+
+def random_loop(rng, n=7):
+    t = np.sort(rng.uniform(0, 2 * np.pi, n))
+    r = rng.uniform(0.3, 0.6, n)
+    return np.stack([r * np.cos(t), r * np.sin(t), rng.uniform(-0.2, 0.2, n)], 1)
+
+
+def test_biot_savart_matches_quadrature_on_random_curves():
+    rng = np.random.default_rng(1)
+    loop = random_loop(rng)
+    pts = rng.uniform(-0.9, 0.9, (50, 3))
+    closed = biot_savart(torch.tensor(pts), [torch.tensor(loop)]).numpy()
+    # sign convention: α = ∮ dℓ × r/|r|³ with r from x to the curve == −(the same with r from curve to x)
+    quad = -quadrature_biot_savart(pts, loop)
+    np.testing.assert_allclose(closed, quad, rtol=1e-6, atol=1e-8)
+
+
+def test_circle_centre_value():
+    a = biot_savart(torch.zeros(1, 3, dtype=torch.float64), [torch.tensor(circle(1.0, n=4000))])
+    np.testing.assert_allclose(a.numpy(), [[0.0, 0.0, -2 * math.pi]], atol=2e-5)
+
+
+def test_axis_matches_gradient_of_exact_solid_angle():
+    R, loop = 0.7, torch.tensor(circle(0.7, n=20000))
+    z = np.array([0.1, 0.35, 0.8])
+    h = 1e-5
+
+    def omega(z):  # the exact solid angle of the disk seen from the axis
+        return 2 * np.pi * (1 - z / np.sqrt(z * z + R * R))
+
+    fd = (omega(z + h) - omega(z - h)) / (2 * h)
+    pts = torch.tensor(np.stack([np.zeros(3), np.zeros(3), z], 1))
+    a = biot_savart(pts, [loop]).numpy()
+    np.testing.assert_allclose(a[:, 2], fd, rtol=1e-6)
+    np.testing.assert_allclose(a[:, :2], 0.0, atol=1e-8)
+    np.testing.assert_allclose(solid_angle(pts, [loop]).numpy(), omega(z), rtol=1e-6)
+
+
+def test_alpha_is_gradient_of_solid_angle_and_curl_free():
+    rng = np.random.default_rng(2)
+    loops = [torch.tensor(l) for l in trefoil(60)]
+    pts = torch.tensor(rng.uniform(-0.8, 0.8, (20, 3)), requires_grad=True)
+    (grad,) = torch.autograd.grad(solid_angle(pts, loops).sum(), pts)
+    a = biot_savart(pts.detach(), loops)
+    # away from the branch cut the solid angle is smooth and its gradient is α
+    np.testing.assert_allclose(grad.numpy(), a.numpy(), rtol=1e-6, atol=1e-6)
+    # curl by central differences of α
+    x = pts.detach()[:5]
+    h = 1e-5
+    jac = torch.zeros(5, 3, 3, dtype=torch.float64)
+    for j in range(3):
+        e = torch.zeros(3, dtype=torch.float64)
+        e[j] = h
+        jac[:, :, j] = (biot_savart(x + e, loops) - biot_savart(x - e, loops)) / (2 * h)
+    curl = torch.stack([jac[:, 2, 1] - jac[:, 1, 2], jac[:, 0, 2] - jac[:, 2, 0], jac[:, 1, 0] - jac[:, 0, 1]], 1)
+    assert curl.abs().max() < 1e-5 * jac.abs().max()
+
+
+def test_biot_savart_is_finite_on_the_curve_and_chunking_is_exact():
+    loop = torch.tensor(circle(0.5, n=50))
+    on_curve = torch.cat([loop[:5], 0.5 * (loop[:5] + loop[1:6])])  # vertices and segment midpoints
+    assert torch.isfinite(biot_savart(on_curve, [loop])).all()
+    pts = torch.rand(3000, 3, dtype=torch.float64) * 2 - 1
+    np.testing.assert_allclose(biot_savart(pts, [loop], chunk_size=257).numpy(), biot_savart(pts, [loop]).numpy())
+    assert biot_savart(pts.float(), [loop]).dtype == torch.float32
+
+
+def test_biot_savart_2d_is_gradient_of_angle():
+    poles = torch.tensor([[-0.5, 0.0], [0.5, 0.1]], dtype=torch.float64)
+    signs = torch.tensor([-1.0, 1.0], dtype=torch.float64)
+    pts = (torch.rand(30, 2, dtype=torch.float64) * 2 - 1).requires_grad_(True)
+    d = pts[:, None, :] - poles[None]
+    angle = (signs * torch.atan2(d[..., 1], d[..., 0])).sum(1)
+    (grad,) = torch.autograd.grad(angle.sum(), pts)
+    np.testing.assert_allclose(biot_savart_2d(pts.detach(), poles, signs).numpy(), grad.numpy(), rtol=1e-10)
+    assert torch.isfinite(biot_savart_2d(poles, poles, signs)).all()
+
+
+def test_paper_curves():
+    (t,) = trefoil()
+    assert t.shape == (100, 3)
+    np.testing.assert_allclose(t[0], np.array([0.0, 1 - 2, 0.0]) / 6)
+    h = hopf_link()
+    np.testing.assert_allclose(h[0].mean(0), [-0.3, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(h[1][:, 1], 0.0)
+    b = borromean_rings()
+    assert len(b) == 3 and all(np.abs(lp).max() <= 0.6 + 1e-12 for lp in b)
+
+
+def test_curve_files(tmp_path):
+    obj = tmp_path / "two.obj"
+    c1, c2 = circle(0.4, (0, 0, 0.2), n=8), circle(0.3, (0, 0, -0.2), n=6)
+    lines = [f"v {x} {y} {z}" for x, y, z in np.concatenate([c1, c2])]
+    lines += ["l " + " ".join(str(i) for i in range(1, 9)) + " 1", "l " + " ".join(str(i) for i in range(9, 15))]
+    obj.write_text("\n".join(lines))
+    loops = load_boundary(str(obj)).loops
+    assert [len(lp) for lp in loops] == [8, 6]  # the repeated closing vertex was dropped
+    txt = tmp_path / "c.txt"
+    np.savetxt(txt, c1)
+    np.testing.assert_allclose(read_curve_file(txt)[0], c1)
+    npy = tmp_path / "c.npy"
+    np.save(npy, c1)
+    np.testing.assert_allclose(load_boundary(str(npy)).loops[0], c1)
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (None, "does not exist"),
+        ("", "contains no curve vertices"),
+        ("0 0 0\n1e-1 0 0\n", "at least 3"),
+        ("0 0 0\n0.1 0 0\n0.2 0 0\n", "collinear"),
+        ("0 0 0\nnan 0 0\n0 0.1 0\n", "NaN"),
+        ("0 0 0\n1.5 0 0\n0 0.1 0\n", "outside the domain"),
+        ("0 0\n1 0\n", "3 coordinates"),
+    ],
+)
+def test_bad_curve_files_give_one_sentence(tmp_path, content, message):
+    path = tmp_path / "bad.txt"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(BoundaryError, match=message) as info:
+        load_boundary(str(path))
+    assert "bad.txt" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_duplicate_vertices_are_dropped_with_a_warning(tmp_path, caplog):
+    path = tmp_path / "dup.txt"
+    loop = circle(0.5, n=6)
+    np.savetxt(path, np.concatenate([loop[:3], loop[2:3], loop[3:]]))
+    assert len(load_boundary(str(path)).loops[0]) == 6
+    assert "duplicate" in caplog.text
+
+
+def test_project_to_segments_and_hausdorff_brute_force():
+    rng = np.random.default_rng(3)
+    a, b = rng.uniform(-1, 1, (7, 3)), rng.uniform(-1, 1, (7, 3))
+    pts = rng.uniform(-1, 1, (40, 3))
+    proj = project_to_segments(torch.tensor(pts), torch.tensor(a), torch.tensor(b))
+    t = np.linspace(0, 1, 20001)
+    dense = a[:, None] + t[None, :, None] * (b - a)[:, None]
+    brute = np.linalg.norm(pts[:, None, None] - dense[None], axis=-1).min(axis=(1, 2))
+    np.testing.assert_allclose(proj.distance.numpy(), brute, atol=1e-4)
+    # concentric squares of half-widths 1 and 0.5: the farthest points are the corners, √0.5 apart
+    sq = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    h = polyline_hausdorff(sq, np.roll(sq, -1, 0), 0.5 * sq, 0.5 * np.roll(sq, -1, 0), spacing=1e-3)
+    assert abs(h - math.sqrt(0.5)) < 1e-3
