@@ -276,6 +276,23 @@ def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_s
     return batch
 
 
+def closest_point_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_near: int,
+                         generator: torch.Generator, near_sigma: float = 0.05,
+                         domain: float = 1.0) -> dict[str, torch.Tensor]:
+    """Training pairs for the closest-surface-point baseline (Venkatesh et al. 2021): points x, uniform in
+    the domain and near Σ (surface samples + N(0, near_sigma²) noise), with their closest points on Σ.
+
+    → {"x": (N + M, 3), "closest": (N + M, 3)} float32.
+    """
+    x = (torch.rand(num_ambient, 3, generator=generator, dtype=torch.float64) * 2.0 - 1.0) * domain
+    if num_near > 0:
+        pts, _ = target.sample_surface(num_near, generator)
+        noise = torch.randn(num_near, 3, generator=generator, dtype=torch.float64) * near_sigma
+        x = torch.cat([x, torch.as_tensor(pts) + noise]).clamp(-domain, domain)
+    near = target.closest(x.numpy())
+    return {"x": x.float(), "closest": torch.as_tensor(near.point, dtype=torch.float32)}
+
+
 def reconstruction_sample(vertices, faces, loops: list[np.ndarray] | None, num_ambient: int,
                           num_surface: int, generator: torch.Generator, boundary_sigma: float = 0.1,
                           boundary_weighting: bool = True,

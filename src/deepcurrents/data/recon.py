@@ -1,0 +1,346 @@
+"""The DataModule for single-surface reconstruction (paper §5.2): a target Σ (a mesh with boundary, an
+oriented point cloud with Γ from a curve file, or a mesh of a human-part dataset), validated before
+training, and an endless stream of batches made in the loader workers by :mod:`deepcurrents.data.targets`.
+
+Also the 2D curve target of paper Fig. 3e/3f (the semicircle through a custom metric).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+import trimesh
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+
+from deepcurrents.data.ambient import stream_seed
+from deepcurrents.data.human_parts import dataset_path
+from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_point_sample, mesh_boundary_loops
+from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.geometry import Boundary, load_boundary, validate_loops, validate_points
+from deepcurrents.geometry.polyline import project_to_segments
+
+log = logging.getLogger(__name__)
+
+
+class TargetError(UserInputError):
+    """A target surface or point cloud that cannot be reconstructed; the message says why."""
+
+
+# ------------------------------------------------------------------------------------------ reading targets
+
+def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle mesh from a file trimesh reads, cleaned for reconstruction: largest connected component
+    (with a warning when there are several), no unreferenced vertices; TargetError with one sentence if
+    it is missing, unreadable, empty, closed, or has non-manifold edges. → (vertices (V, 3), faces (F, 3))."""
+    path = Path(path)
+    if not path.is_file():
+        raise TargetError(f"Mesh file '{path}' does not exist.")
+    try:
+        mesh = trimesh.load(path, process=False, force="mesh")
+    except Exception as err:  # trimesh raises many types for malformed files
+        raise TargetError(f"Mesh file '{path}' could not be read as a triangle mesh ({err}).") from err
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise TargetError(f"Mesh file '{path}' contains no triangles.")
+    verts = np.asarray(mesh.vertices, np.float64)
+    faces = np.asarray(mesh.faces, np.int64)
+    if not np.isfinite(verts).all():
+        raise TargetError(f"Mesh file '{path}' has NaN or infinite vertex coordinates.")
+    # drop degenerate (repeated-vertex) triangles, then keep the largest component
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
+    from deepcurrents.data.human_parts import cut_part, largest_component
+
+    keep = largest_component(faces)
+    if len(keep) < len(faces):
+        log.warning("Mesh '%s' has several connected components; using the largest (%d of %d faces).",
+                    path, len(keep), len(faces))
+    used, faces = cut_part(verts, faces, keep)
+    verts = verts[used]
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    if (counts > 2).any():
+        raise TargetError(f"Mesh '{path}' has {(counts > 2).sum()} non-manifold edges (shared by more than "
+                          "two triangles); its boundary loops are not defined.")
+    if not (counts == 1).any():
+        raise TargetError(f"Mesh '{path}' is closed (it has no boundary edges); DeepCurrents reconstructs "
+                          "surfaces with boundary.")
+    return verts, faces
+
+
+def read_oriented_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """An oriented point cloud: ``.ply`` with vertex properties nx, ny, nz (or a mesh's vertex normals),
+    or ``.xyz``/``.txt``/``.npy`` with rows ``x y z nx ny nz``. → (points (P, 3), unit normals (P, 3))."""
+    path = Path(path)
+    if not path.is_file():
+        raise TargetError(f"Point cloud file '{path}' does not exist.")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".ply":
+            cloud = trimesh.load(path, process=False)
+            raw = cloud.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+            names = raw.dtype.names if raw is not None else ()
+            if not all(k in names for k in ("nx", "ny", "nz")):
+                raise TargetError(f"Point cloud '{path}' has no normals (vertex properties nx, ny, nz); "
+                                  "DeepCurrents needs oriented points.")
+            keys = ("x", "y", "z", "nx", "ny", "nz")
+            data = np.stack([np.asarray(raw[k], np.float64).reshape(-1) for k in keys], 1)
+        elif suffix in (".xyz", ".txt", ".npy"):
+            data = np.load(path) if suffix == ".npy" else np.loadtxt(path, ndmin=2)
+            data = np.asarray(data, np.float64)
+            if data.ndim != 2 or data.shape[1] < 6:
+                raise TargetError(f"Point cloud '{path}' has no normals: expected rows 'x y z nx ny nz', got "
+                                  f"{data.shape[1] if data.ndim == 2 else 0} columns.")
+        else:
+            raise TargetError(f"Point cloud '{path}' has unsupported extension '{suffix}' (use .ply, .xyz, "
+                              ".txt or .npy).")
+    except TargetError:
+        raise
+    except Exception as err:
+        raise TargetError(f"Point cloud '{path}' could not be read ({err}).") from err
+    if len(data) < 10:
+        raise TargetError(f"Point cloud '{path}' has {len(data)} points; it needs at least 10.")
+    pts, nrm = data[:, :3], data[:, 3:6]
+    norm = np.linalg.norm(nrm, axis=1)
+    if not (np.isfinite(data[:, :6]).all() and (norm > 1e-12).all()):
+        raise TargetError(f"Point cloud '{path}' has NaN, infinite or zero-length normals.")
+    return pts, nrm / norm[:, None]
+
+
+def normalisation(points: np.ndarray, mode: bool | str, half_extent: float = 0.5) -> tuple[float, np.ndarray]:
+    """(scale, offset) with model coordinates = (input − offset) / scale.
+
+    mode True: centre the bounding box and fit it in [-half_extent, half_extent]^3 (the paper's box);
+    "auto": only when the input does not already fit in [-0.9, 0.9]^3; False: identity.
+    """
+    lo, hi = points.min(0), points.max(0)
+    if mode == "auto":
+        mode = bool(np.abs(points).max() > 0.9)
+        if mode:
+            log.info("The target does not fit in [-0.9, 0.9]^3; it is centred and scaled into [-0.5, 0.5]^3 "
+                     "(outputs are written back in its own coordinates).")
+    if not mode:
+        return 1.0, np.zeros(3)
+    return float((hi - lo).max()) / (2 * half_extent), 0.5 * (lo + hi)
+
+
+# ------------------------------------------------------------------------------------------ samples
+
+class TargetSamples(IterableDataset):
+    """Endless batches of :func:`deepcurrents.data.targets.target_sample` for one target; the target's
+    trees are built inside each worker (libigl's AABB does not pickle)."""
+
+    def __init__(self, target: dict, loops: list[np.ndarray], num_samples: int, num_surface_samples: int,
+                 boundary_sigma: float, boundary_weighting: bool, surface_loss: bool, seed: int = 0,
+                 rank: int = 0, start_step: int = 0, batch_kind: str = "current", near_sigma: float = 0.05):
+        self.target, self.loops = target, loops
+        self.batch_kind, self.near_sigma = batch_kind, near_sigma
+        self.num_samples, self.num_surface_samples = num_samples, num_surface_samples
+        self.kwargs = {"boundary_sigma": boundary_sigma, "boundary_weighting": boundary_weighting,
+                       "surface_loss": surface_loss}
+        self.seed, self.rank, self.start_step = seed, rank, start_step
+
+    def build(self) -> MeshTarget | PointCloudTarget:
+        if self.target["kind"] == "mesh":
+            return MeshTarget(self.target["vertices"], self.target["faces"], self.loops)
+        return PointCloudTarget(self.target["points"], self.target["normals"], self.loops)
+
+    def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        info = get_worker_info()
+        worker = info.id if info is not None else 0
+        gen = torch.Generator().manual_seed(stream_seed(self.seed, self.rank, worker, self.start_step))
+        target = self.build()
+        while True:
+            if self.batch_kind == "closest_point":  # the baseline: x and its closest point on Σ
+                yield closest_point_sample(target, self.num_samples, self.num_surface_samples, gen,
+                                           self.near_sigma)
+            else:
+                yield target.sample(self.num_samples, self.num_surface_samples, gen, **self.kwargs)
+
+
+class ReconstructionDataModule(L.LightningDataModule):
+    """A reconstruction target and its training batches (paper §5.2: 4000 ambient + 4000 surface samples).
+
+    The target is one of (checked in this order):
+      - ``mesh``: a triangle mesh with boundary; Γ = its boundary loops oriented with its normals;
+      - ``points`` with ``curve``: an oriented point cloud (.ply with normals, .xyz) and Γ from a curve file;
+      - ``category`` (with ``source``, ``index``, ``root``): ``root/source/category/NNN.ply`` (``make data``).
+
+    ``normalize``: True/"auto"/False, see :func:`normalisation` (dataset meshes are already in [-0.5, 0.5]^3).
+    ``batch_kind``: "current" (DeepCurrents' batches) or "closest_point" (the baseline's: ``num_samples``
+    uniform points and ``num_surface_samples`` points near Σ, σ = ``near_sigma``, with their closest points).
+    """
+
+    def __init__(
+        self,
+        mesh: str | None = None,
+        points: str | None = None,
+        curve: str | None = None,
+        category: str | None = None,
+        source: str = "anny",
+        index: int = 0,
+        root: str = "data",
+        normalize: bool | str = "auto",
+        num_samples: int = 4000,
+        num_surface_samples: int = 4000,
+        boundary_sigma: float = 0.1,
+        boundary_weighting: bool = True,
+        surface_loss: bool = True,
+        curve_tolerance: float = 0.05,
+        batch_kind: str = "current",
+        near_sigma: float = 0.05,
+        num_workers: int = 0,
+        seed: int = 0,
+    ):
+        super().__init__()
+        for key, value in (("num_samples", num_samples), ("num_surface_samples", num_surface_samples)):
+            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+                raise ConfigError(f"data.{key}={value!r} must be a positive integer.")
+        if not boundary_sigma > 0:
+            raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
+        if num_workers < 0:
+            raise ConfigError(f"data.num_workers={num_workers} must be zero or positive.")
+        if batch_kind not in ("current", "closest_point"):
+            raise ConfigError(f"data.batch_kind='{batch_kind}' must be 'current' or 'closest_point'.")
+        self.batch_kind, self.near_sigma = batch_kind, float(near_sigma)
+        if normalize not in (True, False, "auto"):
+            raise ConfigError(f"data.normalize={normalize!r} must be true, false or auto.")
+        self.num_samples, self.num_surface_samples = num_samples, num_surface_samples
+        self.sampling = {"boundary_sigma": float(boundary_sigma),
+                         "boundary_weighting": bool(boundary_weighting), "surface_loss": bool(surface_loss)}
+        self.num_workers, self.seed = num_workers, seed
+
+        if mesh is None and points is None:
+            if category is None:
+                raise ConfigError("Reconstruction needs a target: data.mesh=PATH, data.points=PATH with "
+                                  "data.curve=PATH, or data.category=NAME (a dataset built by `make data`).")
+            if isinstance(index, bool) or not isinstance(index, int):
+                raise ConfigError(f"data.index={index!r} must be an integer.")
+            mesh = str(dataset_path(root, source, category, index))
+            name = f"{source}/{category}/{Path(mesh).stem}"
+        else:
+            name = Path(mesh or points).stem
+        self.source_file = str(mesh or points)
+
+        if mesh is not None:
+            verts, faces = read_mesh(mesh)
+            self.scale, self.offset = normalisation(verts, normalize)
+            verts = (verts - self.offset) / self.scale
+            loops = validate_loops(mesh_boundary_loops(verts, faces), f"of mesh '{mesh}'")
+            self.target = {"kind": "mesh", "vertices": verts, "faces": faces}
+        else:
+            if curve is None:
+                raise ConfigError(f"data.points='{points}' needs data.curve=PATH: the boundary Γ of the "
+                                  "surface.")
+            pts, nrm = read_oriented_points(points)
+            self.scale, self.offset = normalisation(pts, normalize)
+            pts = (pts - self.offset) / self.scale
+            raw = load_boundary(curve, domain=np.inf).loops
+            loops = validate_loops([(lp - self.offset) / self.scale for lp in raw], f"'{curve}'")
+            self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
+            self.target = {"kind": "points", "points": pts, "normals": nrm}
+        self.boundary = Boundary(loops, name)
+        self.loops = loops
+
+    @staticmethod
+    def _check_curve_near_points(loops, pts, curve, points, tolerance: float) -> None:
+        """Γ must lie on the cloud: each curve vertex within ``tolerance`` × the cloud's size of a point."""
+        from scipy.spatial import cKDTree
+
+        verts = np.concatenate(loops)
+        dist, _ = cKDTree(pts).query(verts)
+        size = float((pts.max(0) - pts.min(0)).max())
+        if dist.max() > tolerance * size:
+            raise TargetError(f"Curve '{curve}' does not lie near the points of '{points}': a curve vertex "
+                              f"is {dist.max():.3g} from the nearest point (allowed {tolerance * size:.3g}).")
+
+    def model_kwargs(self) -> dict:
+        """The target geometry (model coordinates) and the map back to the input's coordinates."""
+        return {"target": {**self.target, "scale": self.scale, "offset": np.asarray(self.offset, np.float64),
+                           "source": self.source_file}}
+
+    def train_dataloader(self) -> DataLoader:
+        trainer = self.trainer
+        rank = trainer.global_rank if trainer is not None else 0
+        start = trainer.global_step if trainer is not None else 0
+        dataset = TargetSamples(self.target, self.loops, self.num_samples, self.num_surface_samples,
+                                seed=self.seed, rank=rank, start_step=start, batch_kind=self.batch_kind,
+                                near_sigma=self.near_sigma, **self.sampling)
+        return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
+                          persistent_workers=self.num_workers > 0)
+
+
+# ------------------------------------------------------------------------------------------ 2D: Fig. 3e/3f
+
+def curve_metric_2d(x: torch.Tensor, curve: torch.Tensor) -> torch.Tensor:
+    """B_x = I − n nᵀ for an open 2D polyline target (n its unit normal at the closest point), and I where
+    the closest point is an end point (Γ). x (N, 2), curve (K, 2) → (N, 2, 2)."""
+    starts, ends = curve[:-1].to(x), curve[1:].to(x)
+    proj = project_to_segments(x, starts, ends)
+    tangent = (ends - starts)[proj.segment]
+    tangent = tangent / tangent.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    normal = torch.stack([-tangent[:, 1], tangent[:, 0]], -1)
+    at_end = ((proj.segment == 0) & (proj.t <= 0)) | ((proj.segment == len(starts) - 1) & (proj.t >= 1))
+    normal = torch.where(at_end.unsqueeze(-1), torch.zeros_like(normal), normal)
+    eye = torch.eye(2, dtype=x.dtype, device=x.device).expand(len(x), 2, 2)
+    return eye - normal.unsqueeze(-1) * normal.unsqueeze(-2)
+
+
+def semicircle(radius: float = 0.5, n: int = 200) -> np.ndarray:
+    """The upper semicircle from (−r, 0) to (r, 0) through (0, r). → (n + 1, 2)."""
+    t = np.linspace(np.pi, 0.0, n + 1)
+    return radius * np.stack([np.cos(t), np.sin(t)], 1)
+
+
+class CurveMetricSamples(IterableDataset):
+    """Endless batches {"x": (N, 2), "metric": (N, 2, 2)} for a 2D curve target."""
+
+    def __init__(self, curve: np.ndarray, num_samples: int, seed: int = 0, rank: int = 0,
+                 start_step: int = 0):
+        self.curve = torch.as_tensor(curve, dtype=torch.float32)
+        self.num_samples, self.seed, self.rank, self.start_step = num_samples, seed, rank, start_step
+
+    def __iter__(self):
+        info = get_worker_info()
+        worker = info.id if info is not None else 0
+        gen = torch.Generator().manual_seed(stream_seed(self.seed, self.rank, worker, self.start_step))
+        while True:
+            x = torch.rand(self.num_samples, 2, generator=gen) * 2.0 - 1.0
+            yield {"x": x, "metric": curve_metric_2d(x, self.curve)}
+
+
+class CurveMetricDataModule(L.LightningDataModule):
+    """Paper Fig. 3d–f: a 2D curve reconstructed by mass minimisation under B = I − n nᵀ. Γ = the curve's
+    end points (−1 where it starts, +1 where it ends); the model is the usual 2D ``CurrentModule``.
+
+    ``curve``: "semicircle" (radius ``radius``) or a list of [x, y] vertices of an open polyline.
+    """
+
+    def __init__(self, curve: str | Sequence[Sequence[float]] = "semicircle", radius: float = 0.5,
+                 num_samples: int = 4096, num_workers: int = 0, seed: int = 0):
+        super().__init__()
+        if isinstance(curve, str):
+            if curve != "semicircle":
+                raise ConfigError(f"data.curve='{curve}' must be 'semicircle' or a list of [x, y] points.")
+            if not 0 < radius < 1:
+                raise ConfigError(f"data.radius={radius} must be in (0, 1) to fit in [-1, 1]^2.")
+            pts = semicircle(radius)
+        else:
+            pts = np.asarray(curve, np.float64)
+            if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
+                raise ConfigError("data.curve must be an open polyline of at least two [x, y] points.")
+        if num_samples <= 0:
+            raise ConfigError(f"data.num_samples={num_samples} must be a positive integer.")
+        self.curve, self.num_samples, self.num_workers, self.seed = pts, num_samples, num_workers, seed
+        self.boundary = validate_points(pts[[0, -1]], [-1.0, 1.0], source="the curve's end points")
+
+    def train_dataloader(self) -> DataLoader:
+        trainer = self.trainer
+        rank = trainer.global_rank if trainer is not None else 0
+        start = trainer.global_step if trainer is not None else 0
+        dataset = CurveMetricSamples(self.curve, self.num_samples, self.seed, rank, start)
+        return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
+                          persistent_workers=self.num_workers > 0)

@@ -1,0 +1,142 @@
+"""The baseline of the paper's Table 1: a closest-surface-point network in the manner of Venkatesh et al.
+(ICCV 2021, "Deep Implicit Surface Point Prediction Networks"): g_θ(x) = x + h_θ(x) predicts the closest
+point of the target to any x, trained by regression on exact closest points, for the same wall-clock time
+as a DeepCurrents run. As in the paper, its UCD is E_{y ~ U(Σ)} |y − g_θ(y)|: the distance from a target
+point to the learned surface is the distance to the point the network says is closest.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from deepcurrents.errors import ConfigError
+from deepcurrents.eval.metrics import sample_surface
+from deepcurrents.models.base import DeepCurrentsModule
+from deepcurrents.models.reconstruction import TargetGeometry
+from deepcurrents.nn import FieldMLP, FourierFeatures
+
+log = logging.getLogger(__name__)
+
+
+def read_wall_time(path: str | Path) -> float:
+    """``train_seconds`` of a finished run (its metrics.json); ConfigError when it is not there."""
+    path = Path(path)
+    try:
+        return float(json.loads(path.read_text())["train_seconds"])
+    except (OSError, KeyError, ValueError, TypeError) as err:
+        raise ConfigError(f"model.wall_time_from='{path}' is not a run's metrics.json with train_seconds "
+                          f"({err}).") from err
+
+
+class ClosestPointModule(DeepCurrentsModule):
+    """x ↦ g(x) = x + h(x), h the Fourier-feature MLP with 3 outputs; loss E|g(x) − proj_Σ(x)|².
+
+    Batches: ``ReconstructionDataModule(batch_kind="closest_point")`` → {"x", "closest"}.
+    Stops when the training time reaches ``time_budget_s`` (or the ``train_seconds`` read from
+    ``wall_time_from`` when training starts), else at ``trainer.max_steps``.
+    """
+
+    def __init__(self, net: dict, optim: dict, evaluation: dict | None = None, target: dict | None = None,
+                 boundary: dict | None = None, near_fraction: float = 0.5, near_sigma: float = 0.05,
+                 time_budget_s: float | None = None, wall_time_from: str | None = None):
+        super().__init__(optim)
+        self.save_hyperparameters(ignore=["target"])
+        if time_budget_s is not None and not float(time_budget_s) > 0:
+            raise ConfigError(f"model.time_budget_s={time_budget_s} must be positive.")
+        net = dict(net)
+        self.encoding = FourierFeatures(3, int(net["num_frequencies"]), float(net["sigma"]),
+                                        enabled=bool(net.get("rff", True)), seed=net.get("rff_seed"))
+        self.mlp = FieldMLP(self.encoding.out_dim, int(net["width"]), int(net["depth"]),
+                            net.get("activation", "softplus"), out_dim=3)
+        self.evaluation = dict(evaluation or {})
+        self.time_budget_s = float(time_budget_s) if time_budget_s is not None else None
+        self.wall_time_from = wall_time_from
+        TargetGeometry.register(self, target)
+        self.train_seconds = 0.0
+        self._start: float | None = None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Predicted closest points. (N, 3) → (N, 3)."""
+        return x + self.mlp(self.encoding(x))
+
+    def on_train_start(self) -> None:
+        if self.wall_time_from is not None and self.time_budget_s is None:
+            self.time_budget_s = read_wall_time(self.wall_time_from)
+            log.info("closest-point baseline: training for %.1f s (the wall time of %s)", self.time_budget_s,
+                     self.wall_time_from)
+        self._start = time.perf_counter()
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        loss = ((self(batch["x"]) - batch["closest"]) ** 2).sum(-1).mean()
+        self.check_finite(loss)
+        self.log("train/loss", loss, prog_bar=True)
+        return loss
+
+    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
+        elapsed = time.perf_counter() - self._start if self._start is not None else 0.0
+        if self.time_budget_s is not None and self.train_seconds + elapsed >= self.time_budget_s:
+            self.trainer.should_stop = True
+
+    def on_train_end(self) -> None:
+        if self._start is not None:
+            self.train_seconds += time.perf_counter() - self._start
+            self._start = None
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        super().on_save_checkpoint(checkpoint)
+        elapsed = time.perf_counter() - self._start if self._start else 0.0
+        checkpoint["train_seconds"] = self.train_seconds + elapsed
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
+
+    @torch.no_grad()
+    def predict_points(self, x: np.ndarray, chunk: int = 1 << 15) -> np.ndarray:
+        dev = next(self.parameters()).device
+        out = [self(torch.as_tensor(c, dtype=torch.float32, device=dev)).double().cpu().numpy()
+               for c in np.array_split(x, max(1, len(x) // chunk))]
+        return np.concatenate(out)
+
+    @torch.no_grad()
+    def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
+        """``ucd`` = mean |y − g(y)| over uniform target samples (the paper's evaluation of this baseline);
+        ``ucd_reverse`` = mean distance to the target of predicted points g(x) for x near the target;
+        ``points.ply`` holds those predicted points."""
+        import trimesh
+
+        from deepcurrents.eval.metrics import point_mesh_distance
+
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        self.eval()
+        n = int(self.evaluation.get("ucd_samples", 100_000))
+        seed = int(self.evaluation.get("seed", 12345))
+        target = TargetGeometry.mesh(self)
+        if target is not None:
+            y = sample_surface(target, n, seed)
+        else:
+            y = TargetGeometry.points(self)
+        pred_y = self.predict_points(y)
+        rng = np.random.default_rng(seed + 1)
+        near = y + rng.normal(scale=float(self.hparams.near_sigma), size=y.shape)
+        pred = self.predict_points(near)
+        if target is not None:
+            reverse = float(point_mesh_distance(pred, target).mean())
+        else:
+            from scipy.spatial import cKDTree
+
+            reverse = float(cKDTree(y).query(pred)[0].mean())
+        ucd = float(np.linalg.norm(pred_y - y, axis=1).mean())
+        metrics = {"ucd": ucd, "ucd_reverse": reverse, "chamfer": 0.5 * (ucd + reverse),
+                   "loss": float(((pred_y - y) ** 2).sum(1).mean()), "steps": int(self.global_step),
+                   "train_seconds": round(self.train_seconds, 3), "target": self.target_source}
+        trimesh.PointCloud(TargetGeometry.to_input(self, pred)).export(out_dir / "points.ply")
+        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        return metrics

@@ -1,0 +1,154 @@
+"""Single-surface reconstruction (paper §4.2, §5.2): a neural current whose boundary is the target's Γ,
+trained with the current loss under B_x = w_x (I − n nᵀ) plus the surface hinge loss, and evaluated by
+the unidirectional Chamfer distance (UCD) from the target to the extracted mesh."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import trimesh
+from scipy.spatial import cKDTree
+
+from deepcurrents.errors import ConfigError
+from deepcurrents.eval.meshing import region_of_interest
+from deepcurrents.eval.metrics import point_mesh_distance, sample_surface, unidirectional_chamfer
+from deepcurrents.eval.plots import plot_mesh
+from deepcurrents.losses import current_loss, surface_loss
+from deepcurrents.models.current_module import CurrentModule
+
+
+class TargetGeometry:
+    """The target kept inside a module (as buffers, so it moves and saves with it) and its metrics helpers.
+
+    ``spec`` from ``ReconstructionDataModule.model_kwargs()["target"]``: kind "mesh" (vertices, faces) or
+    "points" (points, normals), in model coordinates; ``scale``/``offset`` map back to the input's.
+    """
+
+    @staticmethod
+    def register(module: torch.nn.Module, spec: dict | None) -> None:
+        spec = spec or {"kind": "none"}
+        module.target_kind = spec["kind"]
+        module.target_source = spec.get("source")
+        if spec["kind"] == "mesh":
+            a, b = spec["vertices"], spec["faces"]
+        elif spec["kind"] == "points":
+            a, b = spec["points"], spec["normals"]
+        else:
+            a, b = np.zeros((0, 3)), np.zeros((0, 3))
+        module.register_buffer("target_a", torch.as_tensor(np.asarray(a), dtype=torch.float64))
+        module.register_buffer("target_b", torch.as_tensor(np.asarray(b)))
+        scale, offset = float(spec.get("scale", 1.0)), np.asarray(spec.get("offset", np.zeros(3)))
+        module.register_buffer("target_scale", torch.tensor(scale, dtype=torch.float64))
+        module.register_buffer("target_offset", torch.as_tensor(offset, dtype=torch.float64))
+
+    @staticmethod
+    def mesh(module) -> trimesh.Trimesh | None:
+        if module.target_kind != "mesh":
+            return None
+        return trimesh.Trimesh(module.target_a.cpu().numpy(), module.target_b.cpu().numpy().astype(np.int64),
+                               process=False)
+
+    @staticmethod
+    def points(module) -> np.ndarray:
+        return module.target_a.cpu().numpy()
+
+    @staticmethod
+    def to_input(module, vertices: np.ndarray) -> np.ndarray:
+        return vertices * float(module.target_scale) + module.target_offset.cpu().numpy()
+
+
+def reconstruction_metrics(module, mesh: trimesh.Trimesh, samples: int, seed: int) -> dict[str, Any]:
+    """UCD (target → mesh, ``samples`` uniform target samples; all points of a cloud), its reverse
+    (mesh → target) and their mean, in model units (the paper's [-0.5, 0.5]^3); None for an empty mesh."""
+    out: dict[str, Any] = {"ucd": None, "ucd_reverse": None, "chamfer": None}
+    if len(mesh.faces) == 0:
+        return out
+    target = TargetGeometry.mesh(module)
+    if target is not None:
+        out["ucd"] = unidirectional_chamfer(target, mesh, samples, seed)
+        out["ucd_reverse"] = unidirectional_chamfer(mesh, target, samples, seed)
+        out["target_area"] = float(target.area)
+    else:
+        pts = TargetGeometry.points(module)
+        out["ucd"] = float(point_mesh_distance(pts, mesh).mean())
+        dist, _ = cKDTree(pts).query(sample_surface(mesh, samples, seed))
+        out["ucd_reverse"] = float(dist.mean())
+    out["chamfer"] = 0.5 * (out["ucd"] + out["ucd_reverse"])
+    return out
+
+
+class ReconstructionModule(CurrentModule):
+    """DeepCurrents for one target surface. Training: L = L_curr(B) + surface_weight · L_surf (paper §4.2,
+    the authors' weight 1); batches come from ``ReconstructionDataModule`` (metric and surface samples
+    already made in the workers). Evaluation: ``CurrentModule``'s mesh of f = s, meshed over the target's
+    padded bounding box, plus ``ucd``, ``ucd_reverse``, ``chamfer``, ``boundary_error`` in metrics.json;
+    ``mesh.ply`` in the input's coordinates.
+
+    Args (beyond ``CurrentModule``'s):
+        target: the target geometry (from the DataModule's ``model_kwargs``); kept as buffers.
+        surface_weight: weight of the surface loss (0 disables it).
+        surface_margin: δ of the surface hinge loss (paper 0.01).
+    """
+
+    def __init__(self, boundary: dict, net: dict, optim: dict, evaluation: dict | None = None,
+                 target: dict | None = None, surface_weight: float = 1.0, surface_margin: float = 0.01):
+        super().__init__(boundary, net, optim, evaluation)
+        self.save_hyperparameters(ignore=["target"])  # the geometry lives in buffers, not in hparams
+        if not surface_weight >= 0 or not surface_margin > 0:
+            raise ConfigError("model.surface_weight must be ≥ 0 and model.surface_margin positive.")
+        self.surface_weight, self.surface_margin = float(surface_weight), float(surface_margin)
+        TargetGeometry.register(self, target)
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        _, omega = self.current(batch["x"], create_graph=True)
+        loss_curr = current_loss(omega, batch.get("metric"))
+        loss = loss_curr
+        if "surface_points" in batch and self.surface_weight > 0:
+            offset = batch["epsilon"].unsqueeze(-1) * batch["surface_normals"]
+            y = batch["surface_points"]
+            f_minus, f_plus = self.current.f(torch.cat([y - offset, y + offset])).chunk(2)
+            loss_surf = surface_loss(f_minus, f_plus, self.surface_margin)
+            loss = loss + self.surface_weight * loss_surf
+            self.log("train/surface_loss", loss_surf)
+        self.check_finite(loss)
+        self.log("train/loss", loss, prog_bar=True)
+        self.log("train/current_loss", loss_curr, prog_bar=True)
+        self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
+        return loss
+
+    def mesh_options(self) -> dict[str, Any]:
+        """Mesh over the target's bounding box grown by ``padding`` (default: Γ's box, too small for a
+        reconstruction that bulges away from its boundary)."""
+        options = super().mesh_options()
+        if options.get("bounds") is None and len(self.target_a):
+            pts = self.target_a.cpu().numpy()
+            options["bounds"] = region_of_interest([pts], options.get("padding", 0.15))
+        return options
+
+    @torch.no_grad()
+    def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
+        out_dir = Path(out_dir)
+        metrics = super().final_evaluation(out_dir)
+        mesh = self.meshing.mesh
+        samples = int(self.evaluation.get("ucd_samples", 100_000))
+        seed = int(self.evaluation.get("seed", 12345))
+        metrics.update(reconstruction_metrics(self, mesh, samples, seed))
+        scale = float(self.target_scale)
+        if scale != 1.0 and metrics["ucd"] is not None:
+            metrics["ucd_input_units"] = metrics["ucd"] * scale
+        if scale != 1.0 or float(self.target_offset.abs().max()) > 0:
+            # the mesh and Γ in the input's coordinates, so that they compare with the user's file
+            trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
+                            process=False).export(out_dir / "mesh.ply")
+            metrics["mesh_area_input_units"] = float(mesh.area) * scale**2
+        metrics["target"] = self.target_source
+        target = TargetGeometry.mesh(self)
+        if target is not None:
+            loops = [lp.cpu().double().numpy() for lp in self.current.loops]
+            plot_mesh(target, loops, out_dir / "target.png", title="target")
+        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        return metrics
