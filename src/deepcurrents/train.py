@@ -111,6 +111,10 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
         return None
     metrics = module.final_evaluation(out_dir)
     log.info("metrics: %s", json.dumps(metrics))
+    for cb in trainer.callbacks:  # final media (deepcurrents.callbacks.MediaCallback) before loggers close
+        hook = getattr(cb, "on_final_evaluation", None)
+        if callable(hook):
+            hook(trainer, module, metrics, out_dir)
     for lg in trainer.loggers:
         lg.log_metrics({f"final/{k}": v for k, v in metrics.items() if isinstance(v, (int, float))},
                        step=int(module.global_step))

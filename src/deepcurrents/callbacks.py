@@ -1,0 +1,136 @@
+"""Lightning callbacks: pictures of the current while it trains, and the final media of a run.
+
+``MediaCallback`` renders the current every ``every_n_steps`` steps (3D: a volume render, paper style;
+2D: Fig. 3's plot) into ``<run>/media/`` and, with a W&B logger, as images on the dashboard. After the
+final evaluation (``train.py`` calls :meth:`MediaCallback.on_final_evaluation`) it writes ``render.png``
+and, with W&B, logs that picture, the final mesh as a 3D object and the metrics as a table.
+Without a logger or with ``logger=csv`` the files in the run directory are the record.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+
+from deepcurrents.errors import ConfigError
+from deepcurrents.eval.render import (
+    DensitySettings,
+    current_to_view,
+    fit_camera,
+    proposal_grid,
+    render_current,
+    render_current_2d,
+    save_image,
+)
+
+log = logging.getLogger(__name__)
+
+
+def _wandb_loggers(trainer: L.Trainer) -> list:
+    from lightning.pytorch.loggers import WandbLogger
+
+    return [lg for lg in trainer.loggers if isinstance(lg, WandbLogger)]
+
+
+class MediaCallback(L.Callback):
+    """Renders of the current during and after training.
+
+    Args:
+        every_n_steps: a render every this many training steps (0: none during training).
+        final: render (and log) the final current after the final evaluation.
+        size: image side in pixels; samples: ω samples per ray; grid: proposal grid resolution.
+        azimuth, elevation: the camera's angles (degrees); it is fitted to the current's support.
+        gain, floor: opacity settings (eval.render.DensitySettings).
+    """
+
+    def __init__(self, every_n_steps: int = 0, final: bool = True, size: int = 160, samples: int = 40,
+                 grid: int = 40, azimuth: float = 35.0, elevation: float = 25.0, gain: float = 3.0,
+                 floor: float = 2.5e-3):
+        super().__init__()
+        checks = (("every_n_steps", every_n_steps, 0), ("size", size, 1), ("samples", samples, 2),
+                  ("grid", grid, 4))
+        for name, value, low in checks:
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise ConfigError(f"callbacks.media.{name}={value!r} must be an integer ≥ {low}.")
+        self.every_n_steps, self.final = every_n_steps, final
+        self.size, self.samples, self.grid = size, samples, grid
+        self.azimuth, self.elevation = azimuth, elevation
+        self.settings = DensitySettings(gain=gain, floor=floor)
+
+    # ------------------------------------------------------------------------------------------ render
+    @torch.no_grad()
+    def render(self, pl_module: L.LightningModule, path: Path | None = None) -> np.ndarray | None:
+        """A picture of the module's current → (H, W, 3) uint8 (also written to ``path``), None if there
+        is nothing to look at."""
+        try:
+            current = current_to_view(pl_module)
+        except ValueError:
+            return None
+        if current.dim == 2:
+            import matplotlib.pyplot as plt
+
+            fig = render_current_2d(current, None)
+            fig.canvas.draw()
+            image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+            plt.close(fig)
+        else:
+            grid = proposal_grid(current, self.grid, self.settings)
+            box = grid.support if grid.support is not None else np.array([[-1.0] * 3, [1.0] * 3])
+            camera = fit_camera(box, self.azimuth, self.elevation, width=self.size, height=self.size)
+            image = render_current(current, camera, samples=self.samples, grid=grid, settings=self.settings)
+            image = image.over()
+        if path is not None:
+            save_image(image, path)
+        return image
+
+    # ------------------------------------------------------------------------------------------- hooks
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any,
+                           batch: Any, batch_idx: int) -> None:
+        step = trainer.global_step
+        if not self.every_n_steps or step == 0 or step % self.every_n_steps or not trainer.is_global_zero:
+            return
+        start = time.perf_counter()
+        path = Path(trainer.default_root_dir) / "media" / f"render_step{step:07d}.png"
+        image = self.render(pl_module, path)
+        if image is None:
+            return
+        for lg in _wandb_loggers(trainer):
+            lg.log_image(key="media/render", images=[image], step=step)
+        log.info("media: rendered step %d in %.1f s", step, time.perf_counter() - start)
+
+    def on_final_evaluation(self, trainer: L.Trainer, pl_module: L.LightningModule,
+                            metrics: dict[str, Any], out_dir: str | Path) -> None:
+        """Called by the train entry point after ``final_evaluation`` wrote metrics.json (and mesh.ply)."""
+        if not self.final or not trainer.is_global_zero:
+            return
+        out_dir = Path(out_dir)
+        image = self.render(pl_module, out_dir / "render.png")
+        loggers = _wandb_loggers(trainer)
+        if not loggers:
+            return
+        import trimesh
+        import wandb
+
+        step = int(pl_module.global_step)
+        media: dict[str, Any] = {}
+        if image is not None:
+            media["media/final_render"] = wandb.Image(image)
+        for name in ("mesh.png", "current.png"):
+            if (out_dir / name).is_file():
+                media[f"media/final_{Path(name).stem}"] = wandb.Image(str(out_dir / name))
+        if (out_dir / "mesh.ply").is_file():
+            mesh = trimesh.load(out_dir / "mesh.ply", force="mesh", process=False)
+            if len(mesh.faces):
+                mesh.export(out_dir / "mesh.glb")  # W&B shows glb/obj/stl, not ply
+                media["media/final_mesh"] = wandb.Object3D.from_file(str(out_dir / "mesh.glb"))
+        # one row, one column per metric: each column keeps one type
+        row = [v if isinstance(v, (int, float)) or v is None else str(v) for v in metrics.values()]
+        media["media/final_metrics"] = wandb.Table(columns=list(metrics), data=[row])
+        for lg in loggers:
+            lg.experiment.log(media, step=step)
