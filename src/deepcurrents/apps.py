@@ -1,0 +1,79 @@
+"""Plumbing shared by the checkpoint apps (``python -m deepcurrents.render|extract|evaluate ckpt_path=…``):
+structured Hydra configs without config files, outputs next to the checkpoint, one-sentence errors.
+
+Each app registers its dataclass with :func:`register_app` and decorates its main with
+``@hydra.main(version_base="1.3", config_path=None, config_name=NAME)``. The apps write only their own
+files: no Hydra run directory, no ``.hydra`` folder, logs to the terminal.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from hydra.core.config_store import ConfigStore
+from omegaconf import OmegaConf
+
+from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
+
+log = logging.getLogger("deepcurrents")
+
+
+def register_app(name: str, schema: type) -> None:
+    """Stores ``schema`` (a dataclass) as the primary config ``name`` in Hydra's ConfigStore."""
+    cs = ConfigStore.instance()
+    cs.store(name=f"{name}_schema", node=schema)
+    cs.store(name=name, node={
+        "defaults": [f"{name}_schema", "_self_", {"override hydra/job_logging": "stdout"}],
+        "hydra": {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False}},
+    })
+
+
+def output_dir(ckpt_path: str, out_dir: str | None) -> Path:
+    """``out_dir`` if given, else a folder named after the checkpoint beside it
+    (``run/checkpoints/last.ckpt`` → ``run/checkpoints/last/``)."""
+    path = Path(out_dir) if out_dir else Path(ckpt_path).expanduser().with_suffix("")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def positive_int(name: str, value: Any, minimum: int = 1) -> int:
+    """``value`` as an int ≥ ``minimum`` or ConfigError naming the setting."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        what = "a positive integer" if minimum == 1 else f"an integer ≥ {minimum}"
+        raise ConfigError(f"{name}={value!r} must be {what}.")
+    return value
+
+
+def run_app(main: Callable[[Any], Any], cfg: Any) -> Any:
+    """Runs an app's body, turning user errors into one sentence on stderr and exit status 2."""
+    missing = sorted(OmegaConf.missing_keys(cfg))
+    if missing:
+        print(f"error: {', '.join(missing)} must be given, e.g. `{missing[0]}=…` on the command line.",
+              file=sys.stderr)
+        sys.exit(2)
+    try:
+        return main(cfg)
+    except UserInputError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+    except NonFiniteLossError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(3)
+
+
+def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> dict[str, Any]:
+    """``extract_surface`` keyword arguments: the run's ``evaluation.mesh`` settings, then ``overrides``
+    (None values are ignored). Families mesh a member inside its training shape's box
+    (``module.meshing_bounds``), since their surfaces reach beyond Γ's box."""
+    run_config = getattr(module, "run_config", None) or {}
+    evaluation = getattr(module, "evaluation", None) or run_config.get("evaluation") or {}
+    settings = dict(evaluation.get("mesh") or {})
+    settings.update({k: v for k, v in overrides.items() if v is not None})
+    if settings.get("bounds") is None and callable(getattr(module, "meshing_bounds", None)):
+        settings["bounds"] = module.meshing_bounds([0 if shape is None else shape])
+        settings.pop("padding", None)
+    return settings

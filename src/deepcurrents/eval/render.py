@@ -1,0 +1,586 @@
+"""Volume rendering of neural currents (the paper's pictures): density from |ω|, colour from ω's direction.
+
+A current ω = ∇f + alpha_scale·α concentrates on its surface as ``jump · alpha_scale · n · δ_Σ``
+(jump = 4π in 3D), so we render the density
+
+    σ(x) = gain · max(|ω(x)| − floor, 0) / (jump · alpha_scale)          [1 / length]
+
+whose integral across an ideal sheet is ``gain``: a face-on sheet has opacity 1 − exp(−gain), whatever the
+network's bandwidth, and the weak residual |ω| away from the surface (below ``floor``) stays transparent.
+Each sample emits the paper's orientation colour ``plots.normal_colors(ω)``.
+
+Sampling (the sheet is thin: uniform ray marching would need thousands of samples per ray):
+
+1. a *proposal grid*: |ω| on a coarse grid over the domain, then on a finer grid over the part where the
+   current lives (its *support* box), max-dilated by one cell so that a sheet between nodes is not lost;
+   computed once and shared by every frame of a turntable;
+2. per ray, the proposal's trilinear interpolation on ``proposal_bins`` bins inside the support box, mixed
+   with a uniform share (defensive importance sampling), gives a piecewise-constant pdf; its quantiles
+   ``(k + ½)/K`` place the K samples (deterministic: no flicker between frames);
+3. ω is evaluated exactly at the samples and composited front to back over the partition of the ray by
+   the samples' midpoints (so a uniform fog still gets its exact optical depth).
+
+Everything runs on the current's device, rays in chunks. Boundary curves are drawn over the image with a
+depth test against the volume (dimmed where the surface hides them).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+import subprocess
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.eval.metrics import jump
+from deepcurrents.eval.plots import normal_colors, plot_current_2d, plot_mesh
+from deepcurrents.geometry.polyline import closed_loop_segments, resample_polyline
+
+log = logging.getLogger(__name__)
+
+DOMAIN = np.array([[-1.0] * 3, [1.0] * 3])
+
+
+# ----------------------------------------------------------------------------------------------- camera
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera orbiting ``target`` (matplotlib's convention, as ``plots.plot_mesh``: z is up, the
+    eye is at azimuth/elevation in degrees, ``distance`` away). ``fov`` is the vertical field of view."""
+
+    azimuth: float = 35.0
+    elevation: float = 25.0
+    distance: float = 3.0
+    fov: float = 35.0
+    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    width: int = 256
+    height: int = 256
+
+    def __post_init__(self):
+        for key in ("width", "height"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ConfigError(f"camera.{key}={value!r} must be a positive integer (pixels).")
+        if not 0.0 < float(self.fov) < 180.0:
+            raise ConfigError(f"camera.fov={self.fov!r} must be an angle in degrees between 0 and 180.")
+        if not (math.isfinite(float(self.distance)) and float(self.distance) > 0):
+            raise ConfigError(f"camera.distance={self.distance!r} must be a positive number.")
+
+    @property
+    def focal(self) -> float:
+        """Focal length in pixels."""
+        return 0.5 * self.height / math.tan(math.radians(self.fov) / 2)
+
+    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(eye, right, up, forward), each (3,) float64; right/up/forward orthonormal."""
+        a, e = math.radians(self.azimuth), math.radians(self.elevation)
+        back = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+        eye = np.asarray(self.target, dtype=np.float64) + self.distance * back
+        forward = -back
+        world_up = np.array([0.0, 0.0, 1.0])
+        if abs(forward @ world_up) > 0.999:  # looking straight down or up: the azimuth sets the image's up
+            world_up = np.array([-math.cos(a), -math.sin(a), 0.0]) * np.sign(forward[2])
+        right = np.cross(forward, world_up)
+        right /= np.linalg.norm(right)
+        up = np.cross(right, forward)
+        return eye, right, up, forward
+
+    def rays(self, device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
+        """One ray per pixel through its centre, row-major from the top-left.
+
+        → (origins (H·W, 3), unit directions (H·W, 3)), float32 on ``device``.
+        """
+        eye, right, up, forward = self.basis()
+        cols = (np.arange(self.width) + 0.5 - 0.5 * self.width) / self.focal
+        rows = (0.5 * self.height - (np.arange(self.height) + 0.5)) / self.focal
+        v, u = np.meshgrid(rows, cols, indexing="ij")
+        d = forward + u.reshape(-1, 1) * right + v.reshape(-1, 1) * up
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        dirs = torch.as_tensor(d, dtype=torch.float32, device=device)
+        origins = torch.as_tensor(eye, dtype=torch.float32, device=device).expand_as(dirs)
+        return origins, dirs
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel coordinates of 3D points: (col (N,), row (N,), distance from the eye (N,)); points behind
+        the camera get NaN pixel coordinates."""
+        eye, right, up, forward = self.basis()
+        rel = np.asarray(points, dtype=np.float64) - eye
+        z = rel @ forward
+        with np.errstate(divide="ignore", invalid="ignore"):
+            zs = np.where(z > 1e-9, z, np.nan)
+            col = 0.5 * self.width + self.focal * (rel @ right) / zs - 0.5
+            row = 0.5 * self.height - self.focal * (rel @ up) / zs - 0.5
+        return col, row, np.linalg.norm(rel, axis=1)
+
+    def orbit(self, azimuth: float) -> Camera:
+        return replace(self, azimuth=float(azimuth))
+
+
+def fit_camera(bounds: np.ndarray, azimuth: float = 35.0, elevation: float = 25.0, fov: float = 35.0,
+               width: int = 256, height: int = 256, margin: float = 1.05, tight: bool = True) -> Camera:
+    """A camera at the given angles looking at the centre of the box ``bounds`` (2, 3).
+
+    ``tight``: as close as the box's 8 corners allow from these angles (stills); otherwise far enough to
+    see the box's bounding sphere from any angle (turntables keep one distance for every frame).
+    """
+    bounds = np.asarray(bounds, dtype=np.float64)
+    center = 0.5 * (bounds[0] + bounds[1])
+    radius = max(0.5 * float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
+    # half-angle of the narrower side of the image: the bounding sphere must fit in it
+    half = math.atan(math.tan(math.radians(fov) / 2) * min(1.0, width / height))
+    far = margin * radius / math.sin(half)
+    camera = Camera(azimuth, elevation, far, fov, tuple(center.tolist()), width, height)
+    if not tight:
+        return camera
+    corners = np.stack(np.meshgrid(*bounds.T, indexing="ij"), -1).reshape(-1, 3)
+
+    def fits(distance: float) -> bool:
+        col, row, _ = replace(camera, distance=distance).project(corners)
+        if not np.all(np.isfinite(col)):
+            return False
+        spread_x = np.abs(col + 0.5 - 0.5 * width).max() / width
+        spread_y = np.abs(row + 0.5 - 0.5 * height).max() / height
+        return max(spread_x, spread_y) * margin <= 0.5
+
+    lo, hi = radius * 1e-3, far  # the sphere's distance always fits; bisect down to the tightest
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return replace(camera, distance=hi)
+
+
+def current_to_view(module, shape: int | None = None):
+    """The current to look at in a model (duck-typed, no model classes imported): ``module.current``
+    (single currents), or for a family the member of training shape ``shape`` (default 0) with its own
+    latent code and boundary (``module.member(module.latent(i), module.shape_loops(i))``), or
+    ``module.default_current()``. Raises ValueError when there is none."""
+    if shape is None and getattr(module, "current", None) is not None:
+        return module.current
+    if all(callable(getattr(module, name, None)) for name in ("member", "latent", "shape_loops")):
+        index = 0 if shape is None else shape
+        if callable(getattr(module, "check_shape_index", None)):
+            index = module.check_shape_index(index, "shape")
+        return module.member(module.latent(index), module.shape_loops(index))
+    if shape is not None:
+        raise ValueError(f"shape={shape} was given, but this {type(module).__name__} holds a single current")
+    if callable(getattr(module, "default_current", None)):
+        return module.default_current()
+    raise ValueError(f"a {type(module).__name__} has no `current` attribute or `default_current()` method")
+
+
+# ------------------------------------------------------------------------------------------ the density
+def _device(current) -> torch.device:
+    try:
+        return next(current.parameters()).device
+    except (StopIteration, AttributeError):
+        return torch.device("cpu")
+
+
+@dataclass
+class DensitySettings:
+    """How |ω| becomes opacity: σ = gain · max(|ω| − floor, 0) / (jump · alpha_scale)."""
+
+    gain: float = 3.0
+    floor: float = 2.5e-3
+    shading: float = 0.0  # 0: pure orientation colour; s > 0: × (1 − s + s·|ω̂·view|), a headlight
+
+    def __post_init__(self):
+        if not self.gain > 0:
+            raise ConfigError(f"gain={self.gain!r} must be positive.")
+        if not self.floor >= 0:
+            raise ConfigError(f"floor={self.floor!r} must be non-negative.")
+        if not 0 <= self.shading <= 1:
+            raise ConfigError(f"shading={self.shading!r} must be in [0, 1].")
+
+
+@dataclass
+class ProposalGrid:
+    """|ω| on a regular grid over ``bounds`` (max-dilated by one cell) and the box where the current lives.
+
+    values (G0, G1, G2) on the current's device; bounds (2, 3); support (2, 3) or None if the current is
+    empty (|ω| below the threshold everywhere).
+    """
+
+    values: torch.Tensor
+    bounds: np.ndarray
+    support: np.ndarray | None
+
+    def lookup(self, x: torch.Tensor) -> torch.Tensor:
+        """Trilinear interpolation at points (N, 3) → (N,) (zero outside the grid)."""
+        lo = torch.as_tensor(self.bounds[0], dtype=x.dtype, device=x.device)
+        hi = torch.as_tensor(self.bounds[1], dtype=x.dtype, device=x.device)
+        g = (x - lo) / (hi - lo) * 2.0 - 1.0
+        # grid_sample wants (x, y, z) ↔ (W, H, D): values are indexed [i, j, k] ↔ (x, y, z), so flip
+        grid = g.flip(-1).reshape(1, -1, 1, 1, 3)
+        out = F.grid_sample(self.values[None, None], grid, mode="bilinear", padding_mode="zeros",
+                            align_corners=True)
+        return out.reshape(-1)
+
+
+def _grid_points(bounds: np.ndarray, resolution: int) -> tuple[np.ndarray, tuple[int, int, int]]:
+    extent = bounds[1] - bounds[0]
+    step = float(extent.max()) / (resolution - 1)
+    shape = tuple(int(max(2, math.ceil(e / step - 1e-9) + 1)) for e in extent)
+    axes = [np.linspace(bounds[0, i], bounds[1, i], shape[i]) for i in range(3)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), shape
+
+
+@torch.no_grad()
+def _omega_norm_grid(current, bounds: np.ndarray, resolution: int, chunk_size: int):
+    pts, shape = _grid_points(bounds, resolution)
+    x = torch.as_tensor(pts, dtype=torch.float32, device=_device(current))
+    _, omega = current.evaluate(x, chunk_size=chunk_size)
+    vol = omega.norm(dim=-1).reshape(shape)
+    dilated = F.max_pool3d(vol[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
+    return dilated, shape
+
+
+def _support_box(values: torch.Tensor, bounds: np.ndarray, threshold: float) -> np.ndarray | None:
+    occupied = (values >= threshold).nonzero()
+    if len(occupied) == 0:
+        return None
+    shape = np.array(values.shape)
+    cell = (bounds[1] - bounds[0]) / (shape - 1)
+    idx = occupied.cpu().numpy()
+    lo = bounds[0] + (idx.min(0) - 1) * cell  # one more cell: the dilation's reach is the grid's blur
+    hi = bounds[0] + (idx.max(0) + 1) * cell
+    return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])
+
+
+@torch.no_grad()
+def proposal_grid(current, resolution: int = 48, settings: DensitySettings | None = None,
+                  bounds: np.ndarray | None = None, chunk_size: int = 1 << 15) -> ProposalGrid:
+    """The proposal grid of a 3D current: |ω| on a (resolution/2)³ grid over ``bounds`` (default the domain
+    [-1, 1]³) finds the support box, then a grid with ``resolution`` nodes along the support's longest side
+    samples |ω| there. The support is where the dilated |ω| ≥ floor/10: a thin sheet between two nodes
+    shows up much weaker on both, and too large a support only costs samples, too small one loses parts."""
+    if int(resolution) < 4:
+        raise ConfigError(f"grid={resolution!r} must be an integer ≥ 4.")
+    settings = settings or DensitySettings()
+    bounds = DOMAIN.copy() if bounds is None else np.asarray(bounds, dtype=np.float64)
+    threshold = 0.1 * settings.floor if settings.floor > 0 else 1e-9
+    coarse, _ = _omega_norm_grid(current, bounds, max(4, resolution // 2), chunk_size)
+    support = _support_box(coarse, bounds, threshold)
+    if support is None:
+        return ProposalGrid(coarse, bounds, None)
+    fine, _ = _omega_norm_grid(current, support, resolution, chunk_size)
+    refined = _support_box(fine, support, threshold)
+    return ProposalGrid(fine, support, refined if refined is not None else support)
+
+
+# -------------------------------------------------------------------------------------------- rendering
+@dataclass
+class Rendering:
+    """A rendered image: premultiplied colour (H, W, 3), opacity (H, W) and the distance from the eye at
+    which the opacity along each ray reaches ½ (H, W; +inf where it never does), all float numpy."""
+
+    color: np.ndarray
+    alpha: np.ndarray
+    depth: np.ndarray
+
+    def over(self, background: Sequence[float] = (1.0, 1.0, 1.0)) -> np.ndarray:
+        """Composited over a background colour → (H, W, 3) uint8."""
+        bg = np.asarray(background, dtype=np.float64)
+        rgb = self.color + (1.0 - self.alpha[..., None]) * bg
+        return np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
+
+    def rgba(self) -> np.ndarray:
+        """Straight (non-premultiplied) RGBA → (H, W, 4) uint8, transparent background."""
+        a = self.alpha[..., None]
+        rgb = np.where(a > 1e-6, self.color / np.maximum(a, 1e-6), 0.0)
+        return np.clip(np.round(np.concatenate([rgb, a], -1) * 255.0), 0, 255).astype(np.uint8)
+
+
+def _box_intersection(origins: torch.Tensor, dirs: torch.Tensor, box: np.ndarray):
+    """Slab test: (t_near (R,), t_far (R,), hit (R,)) of rays against an axis-aligned box (2, 3)."""
+    lo = torch.as_tensor(box[0], dtype=origins.dtype, device=origins.device)
+    hi = torch.as_tensor(box[1], dtype=origins.dtype, device=origins.device)
+    inv = 1.0 / torch.where(dirs.abs() < 1e-12, torch.full_like(dirs, 1e-12), dirs)
+    t0, t1 = (lo - origins) * inv, (hi - origins) * inv
+    t_near = torch.minimum(t0, t1).amax(-1).clamp_min(0.0)
+    t_far = torch.maximum(t0, t1).amin(-1)
+    return t_near, t_far, t_far > t_near
+
+
+def _sample_along(t_near: torch.Tensor, t_far: torch.Tensor, pdf: torch.Tensor, count: int) -> torch.Tensor:
+    """Quantiles (k + ½)/count of a piecewise-constant pdf on equal bins of [t_near, t_far] per ray.
+
+    pdf (R, B) non-negative, rows summing to 1 → t (R, count), increasing along each row.
+    """
+    rays, bins = pdf.shape
+    cdf = torch.cat([torch.zeros(rays, 1, device=pdf.device, dtype=pdf.dtype), pdf.cumsum(-1)], -1)
+    cdf[:, -1] = 1.0
+    u = (torch.arange(count, device=pdf.device, dtype=pdf.dtype) + 0.5) / count
+    u = u.expand(rays, count).contiguous()
+    idx = torch.searchsorted(cdf, u, right=True).clamp(1, bins)
+    c0, c1 = cdf.gather(1, idx - 1), cdf.gather(1, idx)
+    frac = ((u - c0) / (c1 - c0).clamp_min(1e-12)).clamp(0.0, 1.0)
+    s = (idx - 1 + frac) / bins  # position in [0, 1] along the segment
+    return t_near[:, None] + s * (t_far - t_near)[:, None]
+
+
+@torch.no_grad()
+def _render_rays(current, origins, dirs, grid: ProposalGrid, settings: DensitySettings, samples: int,
+                 proposal_bins: int, uniform_share: float, chunk_size: int):
+    """Composites R rays → (premultiplied colour (R, 3), opacity (R,), depth (R,))."""
+    rays = origins.shape[0]
+    color = torch.zeros(rays, 3, device=origins.device)
+    alpha = torch.zeros(rays, device=origins.device)
+    depth = torch.full((rays,), float("inf"), device=origins.device)
+    if grid.support is None:
+        return color, alpha, depth
+    t_near, t_far, hit = _box_intersection(origins, dirs, grid.support)
+    if not bool(hit.any()):
+        return color, alpha, depth
+    o, d, tn, tf = origins[hit], dirs[hit], t_near[hit], t_far[hit]
+    n = o.shape[0]
+    # 1. proposal pdf on equal bins from the (dilated) grid
+    centres = (torch.arange(proposal_bins, device=o.device, dtype=o.dtype) + 0.5) / proposal_bins
+    tb = tn[:, None] + centres[None] * (tf - tn)[:, None]
+    prop = grid.lookup((o[:, None] + tb[..., None] * d[:, None]).reshape(-1, 3)).reshape(n, proposal_bins)
+    total = prop.sum(-1, keepdim=True)
+    prop = torch.where(total > 0, prop / total.clamp_min(1e-30), torch.full_like(prop, 1.0 / proposal_bins))
+    pdf = (1.0 - uniform_share) * prop + uniform_share / proposal_bins
+    # 2. samples at the pdf's quantiles, exact ω there
+    t = _sample_along(tn, tf, pdf, samples)  # (n, K)
+    x = (o[:, None] + t[..., None] * d[:, None]).reshape(-1, 3)
+    _, omega = current.evaluate(x, chunk_size=chunk_size)
+    omega = omega.reshape(n, samples, 3).float()
+    norm = omega.norm(dim=-1)
+    sigma = settings.gain * (norm - settings.floor).clamp_min(0.0) / (jump(3) * float(current.alpha_scale))
+    # 3. front-to-back compositing over the midpoint partition of [t_near, t_far]
+    edges = torch.cat([tn[:, None], 0.5 * (t[:, 1:] + t[:, :-1]), tf[:, None]], -1)
+    a = 1.0 - torch.exp(-sigma * (edges[:, 1:] - edges[:, :-1]))
+    trans = torch.cumprod(torch.cat([torch.ones(n, 1, device=a.device), 1.0 - a[:, :-1]], -1), -1)
+    w = trans * a  # (n, K)
+    rgb = torch.as_tensor(normal_colors(omega.reshape(-1, 3).cpu().double().numpy()), dtype=torch.float32,
+                          device=o.device).reshape(n, samples, 3)
+    if settings.shading > 0:
+        facing = (omega * d[:, None]).sum(-1).abs() / norm.clamp_min(1e-12)
+        rgb = rgb * (1.0 - settings.shading + settings.shading * facing)[..., None]
+    color[hit] = (w[..., None] * rgb).sum(1)
+    acc = w.sum(-1)
+    alpha[hit] = acc
+    reached = (1.0 - trans * (1.0 - a)) >= 0.5  # opacity after sample k
+    first = reached.float().argmax(-1)
+    depth[hit] = torch.where(reached.any(-1), t.gather(1, first[:, None]).squeeze(1),
+                             torch.full_like(tn, float("inf")))
+    return color, alpha, depth
+
+
+@torch.no_grad()
+def render_current(
+    current,
+    camera: Camera | None = None,
+    samples: int = 64,
+    grid: ProposalGrid | int = 48,
+    settings: DensitySettings | None = None,
+    proposal_bins: int = 128,
+    uniform_share: float = 0.1,
+    ray_chunk: int = 4096,
+    chunk_size: int = 1 << 15,
+    curves: bool = True,
+    curve_width: float = 2.0,
+) -> Rendering:
+    """Volume render of a 3D current (see the module docstring).
+
+    Args:
+        current: a NeuralCurrent-like module: ``evaluate(x, chunk_size) -> (f (N,), ω (N, 3))``,
+            ``alpha_scale``, and ``loops`` (list of (M_i, 3)) for the boundary curves.
+        camera: None fits a camera at the default angles around the current's support.
+        samples: ω evaluations per ray.
+        grid: a ProposalGrid (reuse it across frames) or the resolution of a new one.
+        curves: draw Γ over the image.
+
+    Raises UserInputError when the camera sees nothing of the current's support.
+    """
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 2:
+        raise ConfigError(f"samples={samples!r} must be an integer ≥ 2.")
+    settings = settings or DensitySettings()
+    if not isinstance(grid, ProposalGrid):
+        grid = proposal_grid(current, int(grid), settings, chunk_size=chunk_size)
+    if camera is None:
+        camera = fit_camera(grid.support if grid.support is not None else DOMAIN)
+    h, w = camera.height, camera.width
+    dev = _device(current)
+    origins, dirs = camera.rays(dev)
+    if grid.support is None:
+        log.warning("The current is empty (|ω| < %.3g everywhere): the image is blank.", 0.1 * settings.floor)
+    elif not bool(_box_intersection(origins, dirs, grid.support)[2].any()):
+        raise UserInputError(
+            f"The camera (azimuth {camera.azimuth}, elevation {camera.elevation}, "
+            f"distance {camera.distance}, target {tuple(camera.target)}) sees nothing of the current, "
+            f"which lives in the box "
+            f"{np.round(grid.support, 3).tolist()}."
+        )
+    parts = [_render_rays(current, o, d, grid, settings, samples, proposal_bins, uniform_share, chunk_size)
+             for o, d in zip(torch.split(origins, ray_chunk), torch.split(dirs, ray_chunk), strict=True)]
+    color, alpha, depth = (torch.cat(p).cpu().double().numpy() for p in zip(*parts, strict=True))
+    image = Rendering(color.reshape(h, w, 3), alpha.reshape(h, w), depth.reshape(h, w))
+    loops = getattr(current, "loops", None)
+    if curves and loops:
+        draw_curves(image, camera, [lp.detach().cpu().double().numpy() for lp in loops], width=curve_width)
+    return image
+
+
+def draw_curves(image: Rendering, camera: Camera, loops: Sequence[np.ndarray], width: float = 2.0,
+                color: Sequence[float] = (0.0, 0.0, 0.0), hidden: float = 0.3,
+                tolerance: float = 0.03) -> None:
+    """Draws closed polylines (M_i, 3) into ``image`` in place: opaque where nearer than the volume's
+    depth (+ ``tolerance``, Γ lies on the surface's border), blended with weight ``hidden`` behind it."""
+    if not loops:
+        return
+    h, w = image.alpha.shape
+    starts, ends, _ = closed_loop_segments(loops)
+    # world spacing of about ⅓ pixel at the target's distance
+    spacing = camera.distance / camera.focal / 3.0
+    pts = resample_polyline(starts, ends, spacing)
+    col, row, dist = camera.project(pts)
+    ok = np.isfinite(col)
+    col, row, dist = col[ok], row[ok], dist[ok]
+    r = max(0.5, 0.5 * width)
+    k = int(math.ceil(r))
+    off = np.stack(np.meshgrid(np.arange(-k, k + 1), np.arange(-k, k + 1), indexing="ij"), -1).reshape(-1, 2)
+    off = off[(off**2).sum(1) <= r * r + 0.25]
+    ri = (np.round(row)[:, None] + off[None, :, 0]).astype(np.int64).reshape(-1)
+    ci = (np.round(col)[:, None] + off[None, :, 1]).astype(np.int64).reshape(-1)
+    di = np.repeat(dist, len(off))
+    inside = (ri >= 0) & (ri < h) & (ci >= 0) & (ci < w)
+    ri, ci, di = ri[inside], ci[inside], di[inside]
+    nearest = np.full((h, w), np.inf)
+    np.minimum.at(nearest, (ri, ci), di)  # the curve's own z-buffer: one depth per pixel
+    mask = np.isfinite(nearest)
+    visible = mask & (nearest <= image.depth + tolerance)
+    weight = np.where(visible, 1.0, hidden) * mask
+    c = np.asarray(color, dtype=np.float64)
+    image.color[:] = (1 - weight[..., None]) * image.color + weight[..., None] * c
+    image.alpha[:] = (1 - weight) * image.alpha + weight
+
+
+# ------------------------------------------------------------------------------- turntables and files
+@torch.no_grad()
+def render_turntable(current, camera: Camera | None = None, frames: int = 36, grid: ProposalGrid | int = 48,
+                     settings: DensitySettings | None = None, background=(1.0, 1.0, 1.0), **kwargs
+                     ) -> list[np.ndarray]:
+    """``frames`` renders at evenly spaced azimuths (one proposal grid for all) → list of (H, W, 3) uint8."""
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise ConfigError(f"frames={frames!r} must be a positive integer.")
+    settings = settings or DensitySettings()
+    if not isinstance(grid, ProposalGrid):
+        grid = proposal_grid(current, int(grid), settings, chunk_size=kwargs.get("chunk_size", 1 << 15))
+    if camera is None:
+        camera = fit_camera(grid.support if grid.support is not None else DOMAIN, tight=False)
+    out = []
+    for k in range(frames):
+        cam = camera.orbit(camera.azimuth + 360.0 * k / frames)
+        out.append(render_current(current, cam, grid=grid, settings=settings, **kwargs).over(background))
+    return out
+
+
+def save_image(image: np.ndarray, path: str | Path) -> Path:
+    """Writes an (H, W, 3|4) uint8 array as PNG (or any format imageio knows from the suffix)."""
+    import imageio.v3 as iio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(path, image)
+    return path
+
+
+def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 12.0) -> Path:
+    """An endlessly looping GIF of (H, W, 3) uint8 frames."""
+    import imageio.v3 as iio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    iio.imwrite(path, np.stack(frames), extension=".gif", duration=1000.0 / fps, loop=0)
+    return path
+
+
+def ffmpeg_executable() -> str | None:
+    """The ffmpeg binary: imageio-ffmpeg's (the ``media`` extra) or one on PATH; None if there is none."""
+    try:
+        import imageio_ffmpeg
+
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError):
+        return shutil.which("ffmpeg")
+
+
+def save_mp4(frames: Sequence[np.ndarray], path: str | Path, fps: float = 24.0) -> Path | None:
+    """An H.264 MP4 of (H, W, 3) uint8 frames through ffmpeg; None (and a log line) where ffmpeg is absent."""
+    exe = ffmpeg_executable()
+    if exe is None:
+        log.info("ffmpeg not found (pip install 'deepcurrents[media]'); no MP4 written.")
+        return None
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames[0].shape[:2]
+    cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
+           "-r", str(fps), "-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p",
+           "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", str(path)]  # yuv420p needs even sizes
+    data = np.ascontiguousarray(np.stack(frames)[..., :3]).tobytes()
+    result = subprocess.run(cmd, input=data, capture_output=True)
+    if result.returncode != 0:
+        log.warning("ffmpeg failed (%s); no MP4 written.", result.stderr.decode(errors="replace").strip())
+        return None
+    return path
+
+
+# ------------------------------------------------------------------------------ meshes and 2D pictures
+def render_mesh(mesh, loops: Sequence[np.ndarray] | None = None, camera: Camera | None = None,
+                path: str | Path | None = None, title: str | None = None) -> np.ndarray:
+    """A plain shaded mesh picture (``plots.plot_mesh``) seen from the camera's angles → (H, W, 3) uint8.
+
+    matplotlib's 3D view is orthographic-ish and fits the data: only the angles and the size are used.
+    """
+    import matplotlib.pyplot as plt
+
+    camera = camera or Camera()
+    size = max(camera.width, camera.height) / 120.0
+    fig = plot_mesh(mesh, list(loops or []), None, title=title, elev=camera.elevation, azim=camera.azimuth,
+                    size=size)
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    if path is not None:
+        fig.savefig(path)
+    plt.close(fig)
+    return image
+
+
+@torch.no_grad()
+def render_current_2d(current, path: str | Path | None = None, curves: list[np.ndarray] | None = None,
+                      metric_fn=None, show_alpha: bool = True, resolution: int = 201, arrows: int = 21,
+                      title: str | None = None, chunk_size: int = 1 << 15):
+    """Paper Fig. 3 for a 2D current: f as a density plot, α as arrows (``show_alpha``), the metric as
+    ellipses (when ``metric_fn(x (N, 2)) -> B (N, 2, 2) or weights (N,)`` is given), the curve and the
+    boundary points (red where the curve ends, blue where it starts).
+
+    ``curves`` default: ``eval.meshing.extract_curve_2d(current)``. → the matplotlib Figure (closed if saved).
+    """
+    from deepcurrents.eval.meshing import extract_curve_2d
+
+    dev = _device(current)
+    g = torch.linspace(-1, 1, resolution, device=dev)
+    grid = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    f = current.evaluate(grid, chunk_size=chunk_size, omega=False).reshape(resolution, resolution)
+    f = f.cpu().numpy()
+    c = torch.linspace(-1, 1, arrows + 2, device=dev)[1:-1]  # interior nodes: α is singular at no edge
+    coarse = torch.stack(torch.meshgrid(c, c, indexing="ij"), -1).reshape(-1, 2)
+    alpha = current.alpha(coarse).reshape(arrows, arrows, 2).cpu().numpy() if show_alpha else None
+    metric = None
+    if metric_fn is not None:
+        b = torch.as_tensor(metric_fn(coarse))
+        if b.dim() == 1:  # scalar weights w: B = w I
+            b = b[:, None, None] * torch.eye(2, dtype=b.dtype, device=b.device)
+        metric = b.reshape(arrows, arrows, 2, 2).detach().cpu().double().numpy()
+    if curves is None:
+        curves = extract_curve_2d(current)
+    return plot_current_2d(f, alpha, curves, current.poles.cpu().numpy(), current.signs.cpu().numpy(), path,
+                           title=title, metric_grid=metric, grid_extent=float(c[-1]))

@@ -1,0 +1,129 @@
+"""Loading any DeepCurrents checkpoint: the model's class and run configuration travel inside it
+(``checkpoint["deepcurrents"] = {"module": class path, "config": run config}``, see models.base).
+
+Apps (render, extract, evaluate, …) look at a model through :func:`viewable_current`: a module exposes the
+current to look at as its ``current`` attribute (a NeuralCurrent-like module); families give one member
+per training shape (``member``/``latent``/``shape_loops``); other kinds may define ``default_current()``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pickle
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from deepcurrents.errors import UserInputError
+from deepcurrents.eval.render import current_to_view
+from deepcurrents.models.base import CHECKPOINT_KEY, DeepCurrentsModule
+
+
+class CheckpointError(UserInputError):
+    """A checkpoint that cannot be used: missing, truncated, foreign, or of the wrong model kind."""
+
+
+def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
+    """The checkpoint's dictionary (on the CPU), or CheckpointError naming the file and what is wrong."""
+    path = Path(str(ckpt_path)).expanduser()
+    if not path.exists():
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' does not exist.")
+    if not path.is_file():
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a file.")
+    try:
+        # our checkpoints hold plain data (config dicts, hyperparameters); they are our own files
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except (RuntimeError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, ValueError, OSError) as err:
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}' is not a readable PyTorch checkpoint (truncated or corrupt: "
+            f"{type(err).__name__})."
+        ) from None
+    if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a Lightning checkpoint (no state_dict).")
+    info = ckpt.get(CHECKPOINT_KEY)
+    if not isinstance(info, dict) or "module" not in info:
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}' was not written by DeepCurrents (no '{CHECKPOINT_KEY}' entry naming "
+            "its model); train one with `python train.py experiment=…`."
+        )
+    return ckpt
+
+
+def module_class(class_path: str, ckpt_path: str | Path = "") -> type[DeepCurrentsModule]:
+    """The LightningModule class named by a checkpoint, checked to be a DeepCurrents model."""
+    module_name, _, name = str(class_path).rpartition(".")
+    try:
+        cls = getattr(importlib.import_module(module_name), name)
+    except (ImportError, AttributeError, ValueError):
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}' was written by model class '{class_path}', which this version of "
+            "DeepCurrents does not have."
+        ) from None
+    if not (isinstance(cls, type) and issubclass(cls, DeepCurrentsModule)):
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}' names '{class_path}', which is not a DeepCurrents model."
+        )
+    return cls
+
+
+def load_module(ckpt_path: str | Path, map_location: str | torch.device | None = "cpu",
+                expected: type | tuple[type, ...] | None = None) -> DeepCurrentsModule:
+    """Rebuilds the model of any DeepCurrents checkpoint (class and hyperparameters from the file), in eval
+    mode, with ``run_config`` restored. ``expected``: the model kinds the caller can use (else error)."""
+    ckpt = read_checkpoint(ckpt_path)
+    info = ckpt[CHECKPOINT_KEY]
+    cls = module_class(info["module"], ckpt_path)
+    if expected is not None and not issubclass(cls, expected):
+        names = ", ".join(c.__name__ for c in (expected if isinstance(expected, tuple) else (expected,)))
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}' holds a {cls.__name__}, but this needs a {names} checkpoint."
+        )
+    hparams = dict(ckpt.get("hyper_parameters") or {})
+    try:
+        module = cls(**hparams)
+    except UserInputError:
+        raise
+    except TypeError as err:
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}': its {cls.__name__} hyperparameters do not fit this version ({err})."
+        ) from None
+    try:
+        module.load_state_dict(ckpt["state_dict"], strict=True)
+    except RuntimeError:
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}': its weights do not fit a {cls.__name__} built from its own "
+            "hyperparameters (the file was edited or comes from another version)."
+        ) from None
+    if hasattr(module, "on_load_checkpoint"):
+        module.on_load_checkpoint(ckpt)
+    module.run_config = info.get("config")
+    module.loaded_step = int(ckpt.get("global_step", 0))
+    module.eval()
+    if map_location is not None:
+        module.to(map_location)
+    return module
+
+
+def viewable_current(module: torch.nn.Module, ckpt_path: str | Path = "", shape: int | None = None):
+    """The current an app looks at (``eval.render.current_to_view``), or CheckpointError saying why not."""
+    try:
+        return current_to_view(module, shape)
+    except ValueError as err:
+        if isinstance(err, UserInputError):
+            raise
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' has no current to look at: {err}.") from None
+
+
+def resolve_device(device: str) -> torch.device:
+    """'auto' → CUDA if available else CPU; anything else as torch.device, checked to exist."""
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(device)
+    except RuntimeError:
+        raise UserInputError(f"device='{device}' is not a device name (auto, cpu, cuda, cuda:1…).") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise UserInputError(f"device='{device}' was asked for, but no CUDA GPU is available here.")
+    return dev
