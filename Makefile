@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e ".[dev,sweeps]"
+	$(BIN)/pip install --quiet -e ".[dev,sweeps,media]"
 	touch $(STAMP)
 
 run: setup
