@@ -54,7 +54,8 @@ def all_overrides():
             elif group in ("trainer", "logger", "preset", "data", "model", "callbacks", "paths"):
                 cases.append([f"{group}={opt}"])
             else:  # groups added by experiments' families (ablation, hparams_search, ...)
-                cases.append([f"+{group}={opt}"] if group not in ("ablation",) else [f"ablation={opt}"])
+                in_defaults = group in ("ablation", "hparams_search")  # in train.yaml's defaults: no '+'
+                cases.append([f"{group}={opt}"] if in_defaults else [f"+{group}={opt}"])
     return cases
 
 
