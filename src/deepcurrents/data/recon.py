@@ -54,21 +54,27 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
     from deepcurrents.data.human_parts import cut_part, largest_component
 
+    _check_manifold(path, faces)
     keep = largest_component(faces)
     if len(keep) < len(faces):
         log.warning("Mesh '%s' has several connected components; using the largest (%d of %d faces).",
                     path, len(keep), len(faces))
     used, faces = cut_part(verts, faces, keep)
     verts = verts[used]
+    if not _check_manifold(path, faces):
+        raise TargetError(f"Mesh '{path}' is closed (it has no boundary edges); DeepCurrents reconstructs "
+                          "surfaces with boundary.")
+    return verts, faces
+
+
+def _check_manifold(path, faces: np.ndarray) -> bool:
+    """TargetError for edges shared by more than two triangles; → whether the mesh has boundary edges."""
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), 1)
     _, counts = np.unique(edges, axis=0, return_counts=True)
     if (counts > 2).any():
         raise TargetError(f"Mesh '{path}' has {(counts > 2).sum()} non-manifold edges (shared by more than "
                           "two triangles); its boundary loops are not defined.")
-    if not (counts == 1).any():
-        raise TargetError(f"Mesh '{path}' is closed (it has no boundary edges); DeepCurrents reconstructs "
-                          "surfaces with boundary.")
-    return verts, faces
+    return bool((counts == 1).any())
 
 
 def read_oriented_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
