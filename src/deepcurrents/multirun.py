@@ -1,0 +1,72 @@
+"""Results of a Hydra multirun side by side: when every job has finished (locally, on SLURM, or as the
+trials of an Optuna sweep), :class:`MultirunTable` writes ``table.md`` and ``table.csv`` into the sweep
+directory — one row per job: the overrides that differ between jobs, then its ``metrics.json``.
+
+Registered in ``conf/hydra/default.yaml`` (``hydra.callbacks.multirun_table``), so
+``python train.py -m experiment=recon_hand model.net.sigma=1,2,4`` ends with the comparison table.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
+
+
+def collect_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
+    """Each job directory of a sweep that has ``metrics.json``: its number, Hydra overrides and metrics,
+    ordered by job number. Jobs without metrics (failed, or suites) are left out."""
+    jobs = []
+    for metrics_path in Path(sweep_dir).glob("*/metrics.json"):
+        job_dir = metrics_path.parent
+        overrides_path = job_dir / ".hydra" / "overrides.yaml"
+        overrides = list(OmegaConf.load(overrides_path)) if overrides_path.is_file() else []
+        try:
+            metrics = json.loads(metrics_path.read_text())
+        except json.JSONDecodeError:
+            log.warning("%s is not valid JSON; left out of the table.", metrics_path)
+            continue
+        jobs.append({"num": job_dir.name, "dir": str(job_dir), "overrides": [str(o) for o in overrides],
+                     "metrics": metrics})
+    def order(job):  # numeric job directories in numeric order, others after them
+        return (not job["num"].isdigit(), int(job["num"]) if job["num"].isdigit() else 0, job["num"])
+
+    return sorted(jobs, key=order)
+
+
+def write_multirun_table(sweep_dir: str | Path, objective: str | None = None) -> list[dict[str, Any]]:
+    """Writes ``table.md``/``table.csv`` of a sweep's jobs (rows named by their distinct overrides, the
+    objective's column first when given). → the rows."""
+    from deepcurrents.suites import write_table
+
+    jobs = collect_jobs(sweep_dir)
+    if not jobs:
+        return []
+    common = set.intersection(*(set(j["overrides"]) for j in jobs))
+    results = []
+    for j in jobs:
+        distinct = [o for o in j["overrides"] if o not in common]
+        name = f"{j['num']}: {' '.join(distinct)}" if distinct else j["num"]
+        results.append({"name": name, "metrics": j["metrics"]})
+    numeric = (int, float, type(None))
+    keys = sorted({k for r in results for k, v in r["metrics"].items() if isinstance(v, numeric)})
+    if objective in keys:
+        keys.remove(objective)
+        keys.insert(0, objective)
+    return write_table(Path(sweep_dir), results, columns=["run", *keys])
+
+
+class MultirunTable(Callback):
+    """Hydra callback: the table of a multirun's results, written when the multirun ends."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        sweep_dir = Path(config.hydra.sweep.dir)
+        rows = write_multirun_table(sweep_dir, config.get("objective"))
+        if rows:
+            log.info("%d runs side by side: %s", len(rows), sweep_dir / "table.md")
