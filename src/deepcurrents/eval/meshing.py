@@ -8,7 +8,9 @@ singular and the network is smooth there), which leaves a ragged border and spur
    minimal surface lies in the convex hull of its boundary);
 2. cut the mesh exactly along the tube of radius τ around Γ (triangles are clipped on the iso-line of
    the distance to Γ, not removed whole);
-3. outside the tube, keep faces whose |ω| at the centroid is ≥ δ, and drop specks (small components);
+3. outside the tube, keep faces whose |ω| at the centroid is ≥ δ; then keep the connected components
+   where ω flows along ∇f (the level set also holds a complementary surface where ∇f cancels α, which
+   meets Σ only on Γ and so is a separate component once the tube is cut), and drop specks;
 4. move vertices onto the level set by a few clamped Newton steps along ∇f (undoes marching cubes'
    linear-interpolation bias, which terraces surfaces steeper than the grid);
 5. close the tube: join each cut border loop to its boundary loop of Γ by a strip of triangles
@@ -215,14 +217,31 @@ def _newton_to_level(current, verts: np.ndarray, level: float, max_step: float, 
     return x.cpu().double().numpy()
 
 
-def _drop_small_components(verts, faces, min_fraction: float):
-    mesh = trimesh.Trimesh(verts, faces, process=False)
-    if len(faces) == 0 or min_fraction <= 0:
+def _select_components(current, verts, faces, min_fraction: float, min_alignment: float):
+    """Keeps the connected components that carry the current.
+
+    Drops specks (area < ``min_fraction`` of the total) and, when ``min_alignment`` > −1, components where
+    the current does not flow along the jump of f. The level set f = s also contains a "complementary"
+    spanning surface, where ∇f ≈ −alpha_scale·α cancels α; it meets Σ only along Γ, so once the tube
+    around Γ is cut it is a component of its own. On Σ, ω = ∇f + aα points along ∇f (cos ≈ +1); on the
+    complementary surface the uncancelled rest of α points against ∇f (cos < 0). A component is kept if
+    the area-weighted mean of cos(ω, ∇f) over its faces is ≥ ``min_alignment``.
+    """
+    if len(faces) == 0:
         return faces
+    mesh = trimesh.Trimesh(verts, faces, process=False)
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
     areas = np.bincount(labels, weights=mesh.area_faces)
-    keep = areas[labels] >= min_fraction * areas.sum()
-    return faces[keep]
+    keep = areas >= min_fraction * areas.sum()
+    if min_alignment > -1:
+        dev = _device(current)
+        c = torch.as_tensor(mesh.triangles_center, dtype=torch.float32, device=dev)
+        _, omega = current.evaluate(c)
+        grad_f = omega - current.alpha(c)
+        cos = (omega * grad_f).sum(-1) / (omega.norm(dim=-1) * grad_f.norm(dim=-1)).clamp_min(1e-30)
+        score = np.bincount(labels, weights=cos.cpu().numpy() * mesh.area_faces) / np.maximum(areas, 1e-30)
+        keep &= score >= min_alignment
+    return faces[keep[labels]]
 
 
 @torch.no_grad()
@@ -235,6 +254,7 @@ def extract_surface(
     padding: float = 0.15,
     newton_steps: int = 3,
     min_component: float = 0.01,
+    min_alignment: float = 0.5,
     close_boundary: bool = True,
     chunk_size: int = 1 << 16,
 ) -> MeshingResult:
@@ -246,6 +266,9 @@ def extract_surface(
         delta: keep faces with |ω| ≥ delta at their centroid (paper: 5e-3).
         boundary_tube: radius τ of the tube around Γ that is cut and closed by the strip (at least 1.5 voxels).
         bounds: (2, 3) region to mesh; default Γ's bounding box grown by ``padding``.
+        min_component: drop components smaller than this fraction of the total area.
+        min_alignment: keep components whose mean cos(ω, ∇f) is at least this (drops the complementary
+            level surface; see ``_select_components``).
         close_boundary: False gives the paper's mesh (|ω| ≥ δ cut only, no tube, no strip).
     """
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
@@ -279,7 +302,7 @@ def extract_surface(
         centroids = verts[faces].mean(1)
         _, omega = current.evaluate(torch.as_tensor(centroids, dtype=torch.float32, device=dev), chunk_size)
         faces = faces[(omega.norm(dim=-1) >= delta).cpu().numpy()]
-        faces = _drop_small_components(verts, faces, min_component)
+        faces = _select_components(current, verts, faces, min_component, min_alignment if tube > 0 else -2.0)
     if len(faces) == 0:
         log.warning("No part of the level set has |ω| ≥ %.3g; the mesh is empty.", delta)
         return empty
