@@ -63,8 +63,9 @@ class CurrentModule(DeepCurrentsModule):
         loss = current_loss(omega, batch.get("metric"))
         self.check_finite(loss)
         self.log("train/loss", loss, prog_bar=True)
-        self.log("train/mass_area", mass_to_area(float(loss.detach()), self.dim, self.current.alpha_scale),
-                 prog_bar=True)
+        # the extraction-free area (length in 2D) bound, from this batch; an upper bound only for B = I
+        mass_name = "train/mass_area" if self.dim == 3 else "train/mass_length"
+        self.log(mass_name, mass_to_area(float(loss.detach()), self.dim, self.current.alpha_scale), prog_bar=True)
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
         return loss
 
