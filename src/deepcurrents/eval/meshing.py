@@ -98,16 +98,20 @@ def clip_by_field(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray):
     v0, v1 = values[uniq[:, 0]], values[uniq[:, 1]]
     w = v0 / (v0 - v1)
     cut_pts = vertices[uniq[:, 0]] + w[:, None] * (vertices[uniq[:, 1]] - vertices[uniq[:, 0]])
-    base = len(vertices)
-    ab = base + inv[: len(a)]
-    ac = base + inv[len(a):]
+    # a cut at an edge's end is that vertex itself (no zero-length edges, no sliver triangles)
+    fresh = len(vertices) + np.arange(len(w))
+    cut_index = np.where(w <= 1e-12, uniq[:, 0], np.where(w >= 1 - 1e-12, uniq[:, 1], fresh))
+    ab = cut_index[inv[: len(a)]]
+    ac = cut_index[inv[len(a):]]
     new_faces = [keep_faces]
     li = lone_inside
     new_faces.append(np.stack([a[li], ab[li], ac[li]], 1))  # lone inside vertex: one triangle
     lo = ~li  # lone outside vertex a: quad (ab, b, c, ac) → two triangles
     new_faces.append(np.stack([ab[lo], b[lo], c[lo]], 1))
     new_faces.append(np.stack([ab[lo], c[lo], ac[lo]], 1))
-    return np.concatenate([vertices, cut_pts]), np.concatenate(new_faces)
+    out = np.concatenate(new_faces)
+    out = out[(out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 2] != out[:, 0])]
+    return np.concatenate([vertices, cut_pts]), out
 
 
 def border_loops(faces: np.ndarray) -> list[np.ndarray]:
@@ -142,6 +146,7 @@ def _densify_loop(loop: np.ndarray, spacing: float) -> np.ndarray:
 
 def _loop_parameter(points: np.ndarray, loop: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Arc-length parameter in [0, 1) of the closest points on one closed loop, and the distances."""
+    loop = np.ascontiguousarray(loop)
     ends = np.roll(loop, -1, 0)
     seglen = np.linalg.norm(ends - loop, axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seglen)[:-1]])
@@ -158,6 +163,7 @@ def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray):
     Returns (new vertices (n, 3) = the curve's, faces (m + n, 3) indexing [vertices; new]) or None when
     the border does not wind exactly once along the curve.
     """
+    loop = np.ascontiguousarray(loop)
     par, _ = _loop_parameter(vertices[border], loop)
     steps = np.diff(np.concatenate([par, par[:1]]))
     steps = (steps + 0.5) % 1.0 - 0.5  # unwrap
@@ -347,6 +353,8 @@ def extract_surface(
             zipped += 1
         verts, faces = np.concatenate(new_v), np.concatenate(new_f)
     mesh = trimesh.Trimesh(verts, faces, process=True)
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.remove_unreferenced_vertices()
     return MeshingResult(mesh, level, bounds, voxel, tube, zipped)
 
 
