@@ -8,7 +8,6 @@ import torch
 from torch import nn
 
 from deepcurrents.errors import ConfigError
-
 from deepcurrents.geometry import biot_savart, biot_savart_2d
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
