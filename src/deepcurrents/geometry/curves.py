@@ -108,7 +108,8 @@ def read_curve_file(path: str | Path) -> list[np.ndarray]:
             raise BoundaryError(
                 f"Curve file '{path}': loop {i} must have 3 coordinates per vertex, got shape {loop.shape}."
             )
-    return loops
+    # a loop written closed (last vertex = first) is the same loop
+    return [lp[:-1] if len(lp) > 1 and np.array_equal(lp[0], lp[-1]) else lp for lp in loops]
 
 
 def write_curve_file(path: str | Path, loops: list[np.ndarray]) -> None:
