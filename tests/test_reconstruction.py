@@ -110,6 +110,24 @@ def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):
         assert np.all(mesh.vertices > lo - 0.3 * 40) and np.all(mesh.vertices < hi + 0.3 * 40)
 
 
+def test_oriented_point_cloud_run(tmp_path):
+    cap = spherical_cap(subdivisions=2)
+    from deepcurrents.data.targets import mesh_boundary_loops, sample_mesh_surface
+
+    pts, nrm = sample_mesh_surface(np.asarray(cap.vertices), np.asarray(cap.faces), 3000,
+                                   torch.Generator().manual_seed(0))
+    np.savetxt(tmp_path / "cloud.xyz", np.hstack([pts, nrm]))
+    np.savetxt(tmp_path / "rim.txt", mesh_boundary_loops(cap.vertices, cap.faces)[0])
+    cfg = compose_cfg(["experiment=recon_points", f"data.points={tmp_path / 'cloud.xyz'}",
+                       f"data.curve={tmp_path / 'rim.txt'}", *TINY, "trainer.max_steps=2", "data.num_samples=64",
+                       "data.num_surface_samples=64", "model.net.num_frequencies=16", "model.net.width=16",
+                       "model.net.depth=1", "evaluation.mesh.resolution=24"])
+    metrics = train(cfg, out_dir=tmp_path / "run")
+    assert metrics["steps"] == 2 and (tmp_path / "run" / "metrics.json").is_file()
+    if metrics["mesh_faces"]:
+        assert metrics["ucd"] > 0 and metrics["ucd_reverse"] > 0
+
+
 def test_closest_point_baseline_stops_at_its_wall_time(tmp_path, parts_root):
     ref = tmp_path / "ref.json"
     ref.write_text(json.dumps({"train_seconds": 1.5}))
