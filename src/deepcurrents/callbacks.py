@@ -81,8 +81,8 @@ class MediaCallback(L.Callback):
             plt.close(fig)
         else:
             grid = proposal_grid(current, self.grid, self.settings)
-            box = grid.support if grid.support is not None else np.array([[-1.0] * 3, [1.0] * 3])
-            camera = fit_camera(box, self.azimuth, self.elevation, width=self.size, height=self.size)
+            camera = fit_camera(grid.framing_points(), self.azimuth, self.elevation, width=self.size,
+                                height=self.size)
             image = render_current(current, camera, samples=self.samples, grid=grid, settings=self.settings)
             image = image.over()
         if path is not None:

@@ -24,7 +24,6 @@ from deepcurrents.apps import mesh_settings, output_dir, positive_int, register_
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.render import (
-    DOMAIN,
     Camera,
     DensitySettings,
     fit_camera,
@@ -42,7 +41,7 @@ log = logging.getLogger("deepcurrents.render")
 
 # image side (pixels), ω samples per ray, proposal grid resolution; turntable frames are smaller on a CPU
 PRESETS = {
-    "cpu": {"size": 160, "samples": 40, "grid": 40, "turntable_size": 112},
+    "cpu": {"size": 128, "samples": 32, "grid": 32, "turntable_size": 96},
     "gpu": {"size": 640, "samples": 128, "grid": 96, "turntable_size": 480},
 }
 
@@ -99,11 +98,10 @@ def _sizes(cfg: DictConfig, device) -> dict:
     }
 
 
-def make_camera(cfg: DictConfig, support: np.ndarray | None, width: int, height: int, tight: bool) -> Camera:
-    """The configured camera; unset target/distance fitted to the current's support box."""
-    box = support if support is not None else DOMAIN
+def make_camera(cfg: DictConfig, points: np.ndarray, width: int, height: int, tight: bool) -> Camera:
+    """The configured camera; unset target/distance fitted to the points (N, 3) that frame the current."""
     c = cfg.camera
-    fitted = fit_camera(box, c.azimuth, c.elevation, c.fov, width, height, tight=tight)
+    fitted = fit_camera(points, c.azimuth, c.elevation, c.fov, width, height, tight=tight)
     target = tuple(float(v) for v in c.target) if c.target is not None else fitted.target
     if len(target) != 3:
         raise ConfigError(f"camera.target={list(c.target)} must be three numbers [x, y, z].")
@@ -136,7 +134,7 @@ def render_checkpoint(cfg: DictConfig) -> list:
     settings = DensitySettings(gain=float(cfg.gain), floor=float(cfg.floor), shading=float(cfg.shading))
     start = time.perf_counter()
     grid = proposal_grid(current, sizes["grid"], settings)
-    camera = make_camera(cfg, grid.support, sizes["width"], sizes["height"], tight=not cfg.turntable)
+    camera = make_camera(cfg, grid.framing_points(), sizes["width"], sizes["height"], tight=not cfg.turntable)
     kwargs = {"samples": sizes["samples"], "grid": grid, "settings": settings, "curves": bool(cfg.curves)}
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     if cfg.turntable:

@@ -122,26 +122,27 @@ class Camera:
         return replace(self, azimuth=float(azimuth))
 
 
-def fit_camera(bounds: np.ndarray, azimuth: float = 35.0, elevation: float = 25.0, fov: float = 35.0,
-               width: int = 256, height: int = 256, margin: float = 1.05, tight: bool = True) -> Camera:
-    """A camera at the given angles looking at the centre of the box ``bounds`` (2, 3).
+def fit_camera(points: np.ndarray, azimuth: float = 35.0, elevation: float = 25.0, fov: float = 35.0,
+               width: int = 256, height: int = 256, margin: float = 1.08, tight: bool = True) -> Camera:
+    """A camera at the given angles looking at the centre of the points' bounding box.
 
-    ``tight``: as close as the box's 8 corners allow from these angles (stills); otherwise far enough to
-    see the box's bounding sphere from any angle (turntables keep one distance for every frame).
+    points: (N, 3), e.g. a box's two corners (2, 3) or the visible part of a current (ProposalGrid.frame).
+    ``tight``: as close as the points allow from these angles (stills); otherwise far enough to see their
+    bounding sphere from any angle (turntables keep one distance for every frame).
     """
-    bounds = np.asarray(bounds, dtype=np.float64)
-    center = 0.5 * (bounds[0] + bounds[1])
-    radius = max(0.5 * float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    lo_box, hi_box = points.min(0), points.max(0)
+    center = 0.5 * (lo_box + hi_box)
+    radius = max(float(np.linalg.norm(points - center, axis=1).max()), 1e-3)
     # half-angle of the narrower side of the image: the bounding sphere must fit in it
     half = math.atan(math.tan(math.radians(fov) / 2) * min(1.0, width / height))
     far = margin * radius / math.sin(half)
     camera = Camera(azimuth, elevation, far, fov, tuple(center.tolist()), width, height)
     if not tight:
         return camera
-    corners = np.stack(np.meshgrid(*bounds.T, indexing="ij"), -1).reshape(-1, 3)
 
     def fits(distance: float) -> bool:
-        col, row, _ = replace(camera, distance=distance).project(corners)
+        col, row, _ = replace(camera, distance=distance).project(points)
         if not np.all(np.isfinite(col)):
             return False
         spread_x = np.abs(col + 0.5 - 0.5 * width).max() / width
@@ -201,15 +202,25 @@ class DensitySettings:
 
 @dataclass
 class ProposalGrid:
-    """|ω| on a regular grid over ``bounds`` (max-dilated by one cell) and the box where the current lives.
+    """|ω| on a regular grid over ``bounds`` (max-dilated by one cell), the box where the current lives
+    (``support``: rays are marched there) and the points a camera frames (``frame``: Γ and the grid
+    nodes where the current is clearly visible).
 
-    values (G0, G1, G2) on the current's device; bounds (2, 3); support (2, 3) or None if the current is
-    empty (|ω| below the threshold everywhere).
+    values (G0, G1, G2) on the current's device; bounds, support (2, 3); frame (N, 3); support and
+    frame are None if the current is empty (|ω| below the floor everywhere and no Γ).
     """
 
     values: torch.Tensor
     bounds: np.ndarray
     support: np.ndarray | None
+    frame: np.ndarray | None = None
+
+    def framing_points(self) -> np.ndarray:
+        """The points (N, 3) cameras are fitted to (the domain's corners for an empty current)."""
+        for pts in (self.frame, self.support):
+            if pts is not None:
+                return pts
+        return DOMAIN
 
     def lookup(self, x: torch.Tensor) -> torch.Tensor:
         """Trilinear interpolation at points (N, 3) → (N,) (zero outside the grid)."""
@@ -241,37 +252,67 @@ def _omega_norm_grid(current, bounds: np.ndarray, resolution: int, chunk_size: i
     return dilated, shape
 
 
-def _support_box(values: torch.Tensor, bounds: np.ndarray, threshold: float) -> np.ndarray | None:
-    occupied = (values >= threshold).nonzero()
-    if len(occupied) == 0:
+def _support_box(values: torch.Tensor, bounds: np.ndarray, floor: float,
+                 keep: float = 0.995) -> np.ndarray | None:
+    """The box holding the bulk of the visible density max(|ω| − floor, 0) on a grid (values (G0, G1, G2)
+    over ``bounds``): per axis, the quantiles (1 − keep)/2 and (1 + keep)/2 of its marginal, grown by a
+    cell. Specks of stray |ω| (the network's edges of the domain) hold little mass and stay out."""
+    density = (values - floor).clamp_min(0.0).double()
+    total = float(density.sum())
+    if total <= 0:
         return None
     shape = np.array(values.shape)
     cell = (bounds[1] - bounds[0]) / (shape - 1)
-    idx = occupied.cpu().numpy()
-    lo = bounds[0] + (idx.min(0) - 1) * cell  # one more cell: the dilation's reach is the grid's blur
-    hi = bounds[0] + (idx.max(0) + 1) * cell
+    lo, hi = np.empty(3), np.empty(3)
+    for axis in range(3):
+        others = tuple(a for a in range(3) if a != axis)
+        cdf = (density.sum(dim=others).cumsum(0) / total).cpu().numpy()
+        first = int(np.searchsorted(cdf, 0.5 * (1 - keep)))
+        last = int(np.searchsorted(cdf, 0.5 * (1 + keep)))
+        lo[axis] = bounds[0, axis] + (first - 1) * cell[axis]
+        hi[axis] = bounds[0, axis] + (min(last, shape[axis] - 1) + 1) * cell[axis]
     return np.stack([np.maximum(lo, bounds[0]), np.minimum(hi, bounds[1])])
 
 
 @torch.no_grad()
 def proposal_grid(current, resolution: int = 48, settings: DensitySettings | None = None,
                   bounds: np.ndarray | None = None, chunk_size: int = 1 << 15) -> ProposalGrid:
-    """The proposal grid of a 3D current: |ω| on a (resolution/2)³ grid over ``bounds`` (default the domain
-    [-1, 1]³) finds the support box, then a grid with ``resolution`` nodes along the support's longest side
-    samples |ω| there. The support is where the dilated |ω| ≥ floor/10: a thin sheet between two nodes
-    shows up much weaker on both, and too large a support only costs samples, too small one loses parts."""
-    if int(resolution) < 4:
+    """The proposal grid of a 3D current.
+
+    A (resolution/2)³ grid of |ω| over ``bounds`` (default the domain [-1, 1]³) finds the *support*: the
+    box holding 99.5% of the visible density max(|ω| − floor, 0) (dilated by a cell), grown to hold Γ
+    (the surface's border lies on it); then a grid with ``resolution`` nodes along the support's longest
+    side samples |ω| there for the proposal. A sheet thinner than the coarse spacing can fall between
+    nodes: Γ's box still holds minimal surfaces; raise ``resolution`` for thin sheets far from Γ.
+    """
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 4:
         raise ConfigError(f"grid={resolution!r} must be an integer ≥ 4.")
     settings = settings or DensitySettings()
     bounds = DOMAIN.copy() if bounds is None else np.asarray(bounds, dtype=np.float64)
-    threshold = 0.1 * settings.floor if settings.floor > 0 else 1e-9
-    coarse, _ = _omega_norm_grid(current, bounds, max(4, resolution // 2), chunk_size)
+    threshold = settings.floor if settings.floor > 0 else 1e-9
+    coarse, _ = _omega_norm_grid(current, bounds, max(4, int(resolution) // 2), chunk_size)
     support = _support_box(coarse, bounds, threshold)
+    loops = getattr(current, "loops", None)
+    gamma = (torch.cat([lp.detach().reshape(-1, 3) for lp in loops]).cpu().double().numpy() if loops
+             else np.zeros((0, 3)))
+    if len(gamma):
+        cell = float((bounds[1] - bounds[0]).max()) / (max(4, int(resolution) // 2) - 1)
+        support = _union(support, np.stack([gamma.min(0) - cell, gamma.max(0) + cell]), bounds)
     if support is None:
         return ProposalGrid(coarse, bounds, None)
-    fine, _ = _omega_norm_grid(current, support, resolution, chunk_size)
-    refined = _support_box(fine, support, threshold)
-    return ProposalGrid(fine, support, refined if refined is not None else support)
+    fine, _ = _omega_norm_grid(current, support, int(resolution), chunk_size)
+    # frame what is clearly visible (twice the floor, on the undilated side of the blur) and Γ
+    nodes, _ = _grid_points(support, int(resolution))
+    seen = nodes[(fine >= 2.0 * threshold).reshape(-1).cpu().numpy()]
+    frame = np.concatenate([seen[:: max(1, len(seen) // 4096)], gamma])
+    return ProposalGrid(fine, support, support, frame if len(frame) else None)
+
+
+def _union(box: np.ndarray | None, other: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """The box holding two boxes (2, 3), clipped to ``bounds``."""
+    if box is not None:
+        other = np.stack([np.minimum(box[0], other[0]), np.maximum(box[1], other[1])])
+    return np.stack([np.maximum(other[0], bounds[0]), np.minimum(other[1], bounds[1])])
 
 
 # -------------------------------------------------------------------------------------------- rendering
@@ -406,12 +447,12 @@ def render_current(
     if not isinstance(grid, ProposalGrid):
         grid = proposal_grid(current, int(grid), settings, chunk_size=chunk_size)
     if camera is None:
-        camera = fit_camera(grid.support if grid.support is not None else DOMAIN)
+        camera = fit_camera(grid.framing_points())
     h, w = camera.height, camera.width
     dev = _device(current)
     origins, dirs = camera.rays(dev)
     if grid.support is None:
-        log.warning("The current is empty (|ω| < %.3g everywhere): the image is blank.", 0.1 * settings.floor)
+        log.warning("The current is empty (|ω| < %.3g everywhere): the image is blank.", settings.floor)
     elif not bool(_box_intersection(origins, dirs, grid.support)[2].any()):
         raise UserInputError(
             f"The camera (azimuth {camera.azimuth}, elevation {camera.elevation}, "
@@ -431,9 +472,10 @@ def render_current(
 
 def draw_curves(image: Rendering, camera: Camera, loops: Sequence[np.ndarray], width: float = 2.0,
                 color: Sequence[float] = (0.0, 0.0, 0.0), hidden: float = 0.3,
-                tolerance: float = 0.03) -> None:
+                tolerance: float = 0.1) -> None:
     """Draws closed polylines (M_i, 3) into ``image`` in place: opaque where nearer than the volume's
-    depth (+ ``tolerance``, Γ lies on the surface's border), blended with weight ``hidden`` behind it."""
+    depth + ``tolerance`` (Γ lies on the surface's border, inside the halo where α dominates the smooth
+    network), blended with weight ``hidden`` where the surface is clearly in front."""
     if not loops:
         return
     h, w = image.alpha.shape
@@ -475,7 +517,7 @@ def render_turntable(current, camera: Camera | None = None, frames: int = 36, gr
     if not isinstance(grid, ProposalGrid):
         grid = proposal_grid(current, int(grid), settings, chunk_size=kwargs.get("chunk_size", 1 << 15))
     if camera is None:
-        camera = fit_camera(grid.support if grid.support is not None else DOMAIN, tight=False)
+        camera = fit_camera(grid.framing_points(), tight=False)
     out = []
     for k in range(frames):
         cam = camera.orbit(camera.azimuth + 360.0 * k / frames)
