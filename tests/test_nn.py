@@ -13,7 +13,16 @@ from deepcurrents.nn import FieldMLP, FourierFeatures, NeuralCurrent
 
 
 def paper_current(**kw):
+    kw.setdefault("zero_init_output", False)  # a non-constant f, so that gradients are non-trivial
     return NeuralCurrent(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()], **kw)
+
+
+def test_zero_initialised_output_starts_from_alpha():
+    model = paper_current(num_frequencies=16, width=16, depth=2, zero_init_output=True)
+    x = torch.rand(20, 3) * 2 - 1
+    f, omega = model(x, create_graph=False)
+    torch.testing.assert_close(omega, model.alpha(x))
+    assert torch.allclose(f, f[0].expand_as(f))
 
 
 def test_paper_network_parameter_count():

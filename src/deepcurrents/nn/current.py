@@ -24,6 +24,8 @@ class NeuralCurrent(nn.Module):
 
     3D: ``loops`` is a list of (M_i, 3) closed loops. 2D: ``poles`` (P, 2) with ``signs`` (P,).
     The boundary is kept as buffers, so it travels with the module's device and its state_dict.
+    ``zero_init_output`` zeroes the last layer's weights (f ≡ const at the start; the authors' code uses
+    PyTorch's default initialisation, ``zero_init_output=False``).
     """
 
     def __init__(
@@ -40,6 +42,7 @@ class NeuralCurrent(nn.Module):
         activation: str = "softplus",
         alpha_scale: float = 1e-3,
         rff_seed: int | None = None,
+        zero_init_output: bool = True,
     ):
         super().__init__()
         if dim not in (2, 3):
@@ -48,6 +51,11 @@ class NeuralCurrent(nn.Module):
         self.alpha_scale = alpha_scale
         self.encoding = FourierFeatures(dim, num_frequencies, sigma, enabled=rff, seed=rff_seed)
         self.mlp = FieldMLP(self.encoding.out_dim, width, depth, activation)
+        if zero_init_output:
+            # f starts constant, so ω starts as alpha_scale·α (mass ≈ 2.4 for a circle of radius 0.6)
+            # instead of as the random network's gradient, which is 15–40× larger than α: measured here,
+            # the mass bound after 1000 CPU steps was 1.56 with and 1.97 without (disk area 1.13)
+            nn.init.zeros_(self.mlp.net[-1].weight)
         if dim == 3:
             if not loops:
                 raise ConfigError("A 3D current needs at least one boundary loop.")
