@@ -65,9 +65,11 @@ class MediaCallback(L.Callback):
 
     # ------------------------------------------------------------------------------------------ render
     @torch.no_grad()
-    def render(self, pl_module: L.LightningModule, path: Path | None = None) -> np.ndarray | None:
+    def render(self, pl_module: L.LightningModule, path: Path | None = None,
+               trainer: L.Trainer | None = None) -> np.ndarray | None:
         """A picture of the module's current → (H, W, 3) uint8 (also written to ``path``), None if there
-        is nothing to look at."""
+        is nothing to look at. 2D: Fig. 3 with the metric's ellipses when the module or the trainer's
+        DataModule has a ``metric_fn``."""
         try:
             current = current_to_view(pl_module)
         except ValueError:
@@ -75,7 +77,11 @@ class MediaCallback(L.Callback):
         if current.dim == 2:
             import matplotlib.pyplot as plt
 
-            fig = render_current_2d(current, None)
+            metric_fn = getattr(pl_module, "metric_fn", None)
+            if metric_fn is None and trainer is not None:
+                metric_fn = getattr(trainer.datamodule, "metric_fn", None)
+            fig = render_current_2d(current, None, metric_fn=metric_fn if callable(metric_fn) else None,
+                                    show_alpha=not callable(metric_fn))
             fig.canvas.draw()
             image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
             plt.close(fig)
@@ -97,7 +103,7 @@ class MediaCallback(L.Callback):
             return
         start = time.perf_counter()
         path = Path(trainer.default_root_dir) / "media" / f"render_step{step:07d}.png"
-        image = self.render(pl_module, path)
+        image = self.render(pl_module, path, trainer)
         if image is None:
             return
         for lg in _wandb_loggers(trainer):
@@ -110,7 +116,7 @@ class MediaCallback(L.Callback):
         if not self.final or not trainer.is_global_zero:
             return
         out_dir = Path(out_dir)
-        image = self.render(pl_module, out_dir / "render.png")
+        image = self.render(pl_module, out_dir / "render.png", trainer)
         loggers = _wandb_loggers(trainer)
         if not loggers:
             return

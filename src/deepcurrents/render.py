@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import hydra
@@ -109,6 +110,23 @@ def make_camera(cfg: DictConfig, points: np.ndarray, width: int, height: int, ti
     return Camera(float(c.azimuth), float(c.elevation), distance, float(c.fov), target, width, height)
 
 
+def metric_of(module) -> Callable | None:
+    """The metric B_x of a 2D run, for Fig. 3d's ellipses: ``module.metric_fn`` or, rebuilt from the run's
+    config, its DataModule's ``metric_fn`` (x (N, 2) → B (N, 2, 2)); None for the Euclidean metric."""
+    if callable(getattr(module, "metric_fn", None)):
+        return module.metric_fn
+    data = (getattr(module, "run_config", None) or {}).get("data")
+    if not isinstance(data, dict) or "_target_" not in data:
+        return None
+    try:
+        datamodule = hydra.utils.instantiate(data, _convert_="all")
+    except Exception as err:  # the run's data may be gone (moved files): draw without the metric
+        log.warning("Could not rebuild the run's data for its metric (%s); drawing without it.", err)
+        return None
+    metric_fn = getattr(datamodule, "metric_fn", None)
+    return metric_fn if callable(metric_fn) else None
+
+
 def render_checkpoint(cfg: DictConfig) -> list:
     """The app's body. → the files written."""
     device = resolve_device(cfg.device)
@@ -123,7 +141,7 @@ def render_checkpoint(cfg: DictConfig) -> list:
     if current.dim == 2:
         if cfg.turntable or cfg.mesh:
             raise ConfigError("turntable=true and mesh=true need a 3D current; this checkpoint's is 2D.")
-        metric_fn = getattr(module, "metric_fn", None)
+        metric_fn = metric_of(module)
         render_current_2d(current, out / f"{cfg.name}.png")
         written.append(out / f"{cfg.name}.png")
         if callable(metric_fn):
