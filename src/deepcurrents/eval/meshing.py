@@ -8,9 +8,9 @@ singular and the network is smooth there), which leaves a ragged border and spur
    minimal surface lies in the convex hull of its boundary);
 2. cut the mesh exactly along the tube of radius τ around Γ (triangles are clipped on the iso-line of
    the distance to Γ, not removed whole);
-3. outside the tube, keep faces whose |ω| at the centroid is ≥ δ; then keep the connected components
-   where ω flows along ∇f (the level set also holds a complementary surface where ∇f cancels α, which
-   meets Σ only on Γ and so is a separate component once the tube is cut), and drop specks;
+3. outside the tube, keep faces whose |ω| at the centroid is ≥ δ and where ω flows along ∇f (the level
+   set also holds a complementary spanning surface where ∇f cancels α, and what α keeps there points
+   against ∇f), and drop specks (small components);
 4. move vertices onto the level set by a few clamped Newton steps along ∇f (undoes marching cubes'
    linear-interpolation bias, which terraces surfaces steeper than the grid);
 5. close the tube: join each cut border loop to its boundary loop of Γ by a strip of triangles
@@ -156,6 +156,18 @@ def _loop_parameter(points: np.ndarray, loop: np.ndarray) -> tuple[np.ndarray, n
     return par % 1.0, proj.distance.numpy()
 
 
+def _winding_along(par: np.ndarray) -> float:
+    """How many times a closed sequence of loop parameters in [0, 1) goes around (signed)."""
+    steps = np.diff(np.concatenate([par, par[:1]]))
+    return float(((steps + 0.5) % 1.0 - 0.5).sum())
+
+
+def _follows_loop(points: np.ndarray, loop: np.ndarray, max_distance: float) -> bool:
+    """Whether a closed polyline runs once along a loop of Γ, within ``max_distance`` (median)."""
+    par, dist = _loop_parameter(points, loop)
+    return bool(np.median(dist) < max_distance and abs(abs(_winding_along(par)) - 1.0) < 0.1)
+
+
 def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray):
     """Triangles joining a mesh border loop to a closed curve, ordered by the curve's arc-length parameter.
 
@@ -165,9 +177,7 @@ def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray):
     """
     loop = np.ascontiguousarray(loop)
     par, _ = _loop_parameter(vertices[border], loop)
-    steps = np.diff(np.concatenate([par, par[:1]]))
-    steps = (steps + 0.5) % 1.0 - 0.5  # unwrap
-    winding = steps.sum()
+    winding = _winding_along(par)
     if abs(abs(winding) - 1.0) > 0.1:
         return None
     forward = winding > 0
@@ -223,31 +233,14 @@ def _newton_to_level(current, verts: np.ndarray, level: float, max_step: float, 
     return x.cpu().double().numpy()
 
 
-def _select_components(current, verts, faces, min_fraction: float, min_alignment: float):
-    """Keeps the connected components that carry the current.
-
-    Drops specks (area < ``min_fraction`` of the total) and, when ``min_alignment`` > −1, components where
-    the current does not flow along the jump of f. The level set f = s also contains a "complementary"
-    spanning surface, where ∇f ≈ −alpha_scale·α cancels α; it meets Σ only along Γ, so once the tube
-    around Γ is cut it is a component of its own. On Σ, ω = ∇f + aα points along ∇f (cos ≈ +1); on the
-    complementary surface the uncancelled rest of α points against ∇f (cos < 0). A component is kept if
-    the area-weighted mean of cos(ω, ∇f) over its faces is ≥ ``min_alignment``.
-    """
-    if len(faces) == 0:
+def _drop_small_components(verts, faces, min_fraction: float):
+    """Drops connected components with less than ``min_fraction`` of the total area (specks)."""
+    if len(faces) == 0 or min_fraction <= 0:
         return faces
     mesh = trimesh.Trimesh(verts, faces, process=False)
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
     areas = np.bincount(labels, weights=mesh.area_faces)
-    keep = areas >= min_fraction * areas.sum()
-    if min_alignment > -1:
-        dev = _device(current)
-        c = torch.as_tensor(mesh.triangles_center, dtype=torch.float32, device=dev)
-        _, omega = current.evaluate(c)
-        grad_f = omega - current.alpha(c)
-        cos = (omega * grad_f).sum(-1) / (omega.norm(dim=-1) * grad_f.norm(dim=-1)).clamp_min(1e-30)
-        score = np.bincount(labels, weights=cos.cpu().numpy() * mesh.area_faces) / np.maximum(areas, 1e-30)
-        keep &= score >= min_alignment
-    return faces[keep[labels]]
+    return faces[(areas >= min_fraction * areas.sum())[labels]]
 
 
 @torch.no_grad()
@@ -273,8 +266,8 @@ def extract_surface(
         boundary_tube: radius τ of the tube around Γ that is cut and closed by the strip (at least 1.5 voxels).
         bounds: (2, 3) region to mesh; default Γ's bounding box grown by ``padding``.
         min_component: drop components smaller than this fraction of the total area.
-        min_alignment: keep components whose mean cos(ω, ∇f) is at least this (drops the complementary
-            level surface; see ``_select_components``).
+        min_alignment: keep faces where cos(ω, ∇f) is at least this (drops the complementary level
+            surface, where ω points against ∇f).
         close_boundary: False gives the paper's mesh (|ω| ≥ δ cut only, no tube, no strip).
     """
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
@@ -305,12 +298,18 @@ def extract_surface(
         verts, faces = clip_by_field(verts, faces, dist.numpy() - tube)
 
     if len(faces):
-        centroids = verts[faces].mean(1)
-        _, omega = current.evaluate(torch.as_tensor(centroids, dtype=torch.float32, device=dev), chunk_size)
-        faces = faces[(omega.norm(dim=-1) >= delta).cpu().numpy()]
-        faces = _select_components(current, verts, faces, min_component, min_alignment if tube > 0 else -2.0)
+        # The level set f = s also holds a "complementary" spanning surface where ∇f cancels α; there the
+        # uncancelled rest of α points against ∇f, while on Σ the current flows along ∇f (cos ≈ +1).
+        centroids = torch.as_tensor(verts[faces].mean(1), dtype=torch.float32, device=dev)
+        _, omega = current.evaluate(centroids, chunk_size)
+        keep = omega.norm(dim=-1) >= delta
+        if tube > 0 and min_alignment > -1:
+            grad_f = omega - current.alpha(centroids)
+            cos = (omega * grad_f).sum(-1) / (omega.norm(dim=-1) * grad_f.norm(dim=-1)).clamp_min(1e-30)
+            keep &= cos >= min_alignment
+        faces = _drop_small_components(verts, faces[keep.cpu().numpy()], min_component)
     if len(faces) == 0:
-        log.warning("No part of the level set has |ω| ≥ %.3g; the mesh is empty.", delta)
+        log.warning("No part of the level set carries the current (|ω| ≥ %.3g along ∇f); the mesh is empty.", delta)
         return empty
     used = np.unique(faces)
     remap = np.full(len(verts), -1)
@@ -333,21 +332,14 @@ def extract_surface(
         borders = border_loops(faces)
         for loop in loops:
             dense = _densify_loop(loop, voxel)
-            near = []
-            for b in borders:
-                _, d = _loop_parameter(verts[b], loop)
-                if np.median(d) < 2.5 * tube:
-                    near.append(b)
-            if len(near) != 1:
-                log.warning("Γ loop with %d vertices: %d cut border loops near it (need 1); left open.",
-                            len(loop), len(near))
+            # the border that runs along this loop: it winds once around Γ's parameter (holes in the
+            # surface do not) and stays within a few tube radii of it
+            along = [b for b in borders if _follows_loop(verts[b], loop, max_distance=5 * tube)]
+            if len(along) != 1:
+                log.warning("Γ loop with %d vertices: %d cut border loops run along it (need 1); left open.",
+                            len(loop), len(along))
                 continue
-            zipped_part = zip_to_loop(np.concatenate(new_v), near[0], dense)
-            if zipped_part is None:
-                log.warning("Γ loop with %d vertices: the cut border does not wind once along it; left open.",
-                            len(loop))
-                continue
-            added_v, added_f = zipped_part
+            added_v, added_f = zip_to_loop(np.concatenate(new_v), along[0], dense)
             new_v.append(added_v)
             new_f.append(added_f)
             zipped += 1

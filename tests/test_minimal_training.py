@@ -1,0 +1,54 @@
+"""Short CPU trainings against exact answers: the disk spanning a planar circle, the segment between two
+points in 2D. The mass bound must never undercut the exact area/length and must decrease with training."""
+
+import json
+import math
+
+import numpy as np
+from test_train import compose_cfg
+
+from deepcurrents.train import train
+
+SMALL = [
+    "logger=csv", "preset=cpu", "trainer=cpu", "trainer.enable_progress_bar=false",
+    "trainer.enable_model_summary=false", "trainer.log_every_n_steps=25", "evaluation.mass_samples=1048576",
+    "callbacks.model_checkpoint.every_n_train_steps=100000",
+]
+
+
+def logged_mass(out_dir, key):
+    import csv
+
+    rows = list(csv.DictReader(open(next(out_dir.glob("csv/*/metrics.csv")))))
+    return np.array([float(r[key]) for r in rows if r.get(key)])
+
+
+def test_planar_circle_gives_the_disk(tmp_path):
+    radius = 0.5
+    exact = math.pi * radius**2
+    overrides = ["experiment=minimal_trefoil", "data.curve=circle", f"data.curve_scale={radius / 0.6}",
+                 "preset_cpu.max_steps=700", "preset_cpu.step_size=350", "data.num_samples=1024",
+                 "model.net.num_frequencies=128", "model.net.width=64", "model.net.depth=3", "model.optim.lr=2e-3",
+                 "evaluation.mesh.resolution=64"]
+    metrics = train(compose_cfg(overrides + SMALL), out_dir=tmp_path)
+    # mesh: within 10% of the disk, border on the circle (to the meshing tolerance)
+    assert abs(metrics["mesh_area"] - exact) < 0.10 * exact, metrics
+    assert metrics["boundary_error"] < 0.02, metrics
+    # the mass bound is an upper bound (4 standard errors of Monte Carlo slack), decreasing with training
+    assert metrics["mass_area"] > exact - 4 * metrics["mass_area_stderr"], metrics
+    trace = logged_mass(tmp_path, "train/mass_area")
+    assert trace[-5:].mean() < trace[:5].mean()
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    assert saved["steps"] == 700
+
+
+def test_two_points_give_the_segment(tmp_path):
+    exact = 1.0  # points (±0.5, 0)
+    overrides = ["experiment=minimal_2d", "trainer.max_steps=600", "model.optim.step_size=300",
+                 "data.num_samples=1024", "model.net.num_frequencies=64", "model.net.width=64",
+                 "model.net.depth=3", "model.optim.lr=2e-3"]
+    metrics = train(compose_cfg(overrides + SMALL), out_dir=tmp_path)
+    assert abs(metrics["curve_length"] - exact) < 0.10 * exact, metrics
+    assert metrics["mass_length"] > exact - 4 * metrics["mass_length_stderr"], metrics
+    trace = logged_mass(tmp_path, "train/mass_length")
+    assert trace[-5:].mean() < trace[:5].mean()
