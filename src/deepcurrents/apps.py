@@ -22,13 +22,17 @@ from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
 log = logging.getLogger("deepcurrents")
 
 
-def register_app(name: str, schema: type) -> None:
-    """Stores ``schema`` (a dataclass) as the primary config ``name`` in Hydra's ConfigStore."""
+def register_app(name: str, schema: type, doc: str | None = None) -> None:
+    """Stores ``schema`` (a dataclass) as the primary config ``name`` in Hydra's ConfigStore; ``doc``
+    heads ``--help``."""
     cs = ConfigStore.instance()
     cs.store(name=f"{name}_schema", node=schema)
+    header = (doc or f"python -m deepcurrents.{name} ckpt_path=… [key=value …]").replace("${", "$\\{")
     cs.store(name=name, node={
         "defaults": [f"{name}_schema", "_self_", {"override hydra/job_logging": "stdout"}],
-        "hydra": {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False}},
+        "hydra": {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False},
+                  "help": {"app_name": f"deepcurrents.{name}", "header": header,
+                           "footer": "Settings are key=value overrides; --cfg job prints them."}},
     })
 
 

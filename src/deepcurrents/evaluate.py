@@ -47,11 +47,11 @@ class EvaluateConfig:
     shape: int | None = None  # families: which training shape (default 0)
     resolution: int | None = None  # marching cubes (default: the run's evaluation.mesh.resolution)
     samples: int = 100_000  # uniform samples of each surface for the Chamfer distances
-    mass_samples: int = 1 << 20
-    seed: int | None = None  # None: the run's evaluation.seed (so `loss` matches the run's metrics.json)
+    mass_samples: int | None = None  # None: the run's evaluation.mass_samples (2^20 by default)
+    seed: int | None = None  # None: the run's evaluation.seed
 
 
-register_app("evaluate", EvaluateConfig)
+register_app("evaluate", EvaluateConfig, __doc__)
 
 
 def read_mesh(path: str, what: str) -> trimesh.Trimesh:
@@ -73,7 +73,8 @@ def read_mesh(path: str, what: str) -> trimesh.Trimesh:
 def evaluate_checkpoint(cfg: DictConfig) -> dict:
     """The app's body. → the metrics written to metrics.json."""
     samples = positive_int("samples", cfg.samples)
-    mass_samples = positive_int("mass_samples", cfg.mass_samples)
+    if cfg.mass_samples is not None:
+        positive_int("mass_samples", cfg.mass_samples)
     if cfg.resolution is not None:
         positive_int("resolution", cfg.resolution, 8)
     target = read_mesh(cfg.target, "target") if cfg.target else None
@@ -83,8 +84,10 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
     out = output_dir(cfg.ckpt_path, cfg.out_dir)
 
+    # unset sizes and seed from the run's own evaluation settings, so `loss` matches its metrics.json
     evaluation = getattr(module, "evaluation", None) or (module.run_config or {}).get("evaluation") or {}
     seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
+    mass_samples = int(cfg.mass_samples or evaluation.get("mass_samples", 1 << 20))
     mass, stderr = mass_estimate(current, mass_samples, seed=seed)
     scale = mass_to_area(1.0, current.dim, current.alpha_scale)
     name = "area" if current.dim == 3 else "length"

@@ -43,7 +43,7 @@ class ExtractConfig:
     newton_steps: int | None = None
 
 
-register_app("extract", ExtractConfig)
+register_app("extract", ExtractConfig, __doc__)
 
 
 def extract_checkpoint(cfg: DictConfig) -> dict:

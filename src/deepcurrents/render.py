@@ -82,7 +82,7 @@ class RenderConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
 
 
-register_app("render", RenderConfig)
+register_app("render", RenderConfig, __doc__)
 
 
 def _sizes(cfg: DictConfig, device) -> dict:

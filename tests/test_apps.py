@@ -1,0 +1,235 @@
+"""The checkpoint apps (render, extract, evaluate), checkpoint loading, the media callback, and the sweep /
+launcher configs: on a tiny disk (circle boundary) trained once for the whole module."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+import torch
+import trimesh
+import yaml
+from conftest import CONF_DIR, ROOT
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.evaluate import EvaluateConfig, evaluate_checkpoint
+from deepcurrents.extract import ExtractConfig, extract_checkpoint
+from deepcurrents.models import CurrentModule
+from deepcurrents.models.loading import CheckpointError, load_module
+from deepcurrents.render import RenderConfig, render_checkpoint
+from deepcurrents.train import train
+
+RADIUS = 0.6  # data.curve=circle: the named circle of radius 0.6 in the xy-plane
+DISK = [  # about the smallest setting whose extracted mesh is the disk (area within a few %)
+    "experiment=minimal_curve", "data.curve=circle", "data.curve_vertices=48", "logger=csv", "preset=cpu",
+    "trainer=cpu", "trainer.max_steps=200", "trainer.enable_progress_bar=false",
+    "trainer.enable_model_summary=false", "data.num_samples=1024", "model.net.num_frequencies=32",
+    "model.net.width=64", "model.net.depth=2", "model.net.sigma=1.0", "model.optim.lr=1e-2",
+    "model.optim.step_size=150", "evaluation.mass_samples=8192", "evaluation.mesh.resolution=32",
+    "callbacks.model_checkpoint.every_n_train_steps=100", "callbacks.media.every_n_steps=100",
+    "callbacks.media.size=16", "callbacks.media.samples=6", "callbacks.media.grid=8",
+]
+
+
+def compose_cfg(overrides, hydra_config=False):
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose(config_name="train", overrides=overrides, return_hydra_config=hydra_config)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A trained tiny disk: its run directory (metrics.json, mesh.ply, checkpoints/last.ckpt, media)."""
+    out = tmp_path_factory.mktemp("disk")
+    torch.manual_seed(0)
+    train(compose_cfg(DISK), out_dir=out)
+    return out
+
+
+def app_cfg(schema, **values):
+    cfg = OmegaConf.structured(schema)
+    for key, value in values.items():
+        OmegaConf.update(cfg, key, value)
+    return cfg
+
+
+def test_run_leaves_media_files(run):
+    assert (run / "render.png").is_file()  # the final render (MediaCallback.on_final_evaluation)
+    assert (run / "media" / "render_step0000100.png").is_file()  # every_n_steps
+    assert iio.imread(run / "render.png").shape == (16, 16, 3)
+
+
+def test_load_module_rebuilds_the_model_with_its_config(run):
+    module = load_module(run / "checkpoints" / "last.ckpt")
+    assert isinstance(module, CurrentModule) and not module.training
+    assert module.run_config["data"]["curve"] == "circle" and module.loaded_step == 200
+    x = torch.rand(64, 3) * 2 - 1
+    ckpt = torch.load(run / "checkpoints" / "last.ckpt", weights_only=False)
+    fresh = CurrentModule(**ckpt["hyper_parameters"])
+    fresh.load_state_dict(ckpt["state_dict"])
+    assert torch.equal(module.current.evaluate(x)[1], fresh.current.evaluate(x)[1])
+
+
+def test_bad_checkpoints_are_one_sentence(run, tmp_path):
+    good = run / "checkpoints" / "last.ckpt"
+    with pytest.raises(CheckpointError, match="does not exist"):
+        load_module(tmp_path / "missing.ckpt")
+    truncated = tmp_path / "truncated.ckpt"
+    truncated.write_bytes(good.read_bytes()[:2000])
+    with pytest.raises(CheckpointError, match="truncated or corrupt"):
+        load_module(truncated)
+    foreign = tmp_path / "foreign.ckpt"
+    torch.save({"state_dict": {}, "epoch": 0}, foreign)
+    with pytest.raises(CheckpointError, match="not written by DeepCurrents"):
+        load_module(foreign)
+    ckpt = torch.load(good, weights_only=False)
+    ckpt["deepcurrents"]["module"] = "deepcurrents.models.NoSuchModel"
+    torch.save(ckpt, tmp_path / "unknown.ckpt")
+    with pytest.raises(CheckpointError, match="does not have"):
+        load_module(tmp_path / "unknown.ckpt")
+
+    class OtherKind(CurrentModule):
+        pass
+
+    with pytest.raises(CheckpointError, match="holds a CurrentModule, but this needs a OtherKind"):
+        load_module(good, expected=OtherKind)
+
+
+def test_render_app_writes_stills_turntables_and_mesh_pictures(run, tmp_path):
+    ckpt = str(run / "checkpoints" / "last.ckpt")
+    small = {"camera.width": 20, "camera.height": 14, "samples": 6, "grid": 8}
+    written = render_checkpoint(app_cfg(RenderConfig, ckpt_path=ckpt, **small))
+    assert written == [run / "checkpoints" / "last" / "render.png"]  # beside the checkpoint
+    assert iio.imread(written[0]).shape == (14, 20, 3)
+    out = tmp_path / "tt"
+    written = render_checkpoint(app_cfg(RenderConfig, ckpt_path=ckpt, out_dir=str(out), turntable=True, frames=4,
+                                        mesh=True, resolution=16, **small))
+    gif = out / "render_turntable.gif"
+    assert gif in written and iio.imread(gif, index=None).shape[:3] == (4, 14, 20)
+    assert iio.imread(out / "render_mesh_turntable.gif", index=None).shape[0] == 4
+    with pytest.raises(ConfigError, match="frames=0 must be a positive integer"):
+        render_checkpoint(app_cfg(RenderConfig, ckpt_path=ckpt, turntable=True, frames=0))
+    with pytest.raises(ConfigError, match="camera.width"):
+        render_checkpoint(app_cfg(RenderConfig, ckpt_path=ckpt, **{"camera.width": -3}))
+
+
+def test_extract_at_two_resolutions_gives_areas_that_agree(run, tmp_path):
+    ckpt = str(run / "checkpoints" / "last.ckpt")
+    areas = []
+    for resolution in (24, 40):
+        summary = extract_checkpoint(app_cfg(ExtractConfig, ckpt_path=ckpt, out_dir=str(tmp_path),
+                                             resolution=resolution, format="obj", picture=False))
+        mesh = trimesh.load(summary["mesh"], force="mesh")
+        assert Path(summary["mesh"]).name == f"mesh_r{resolution}.obj"
+        assert mesh.area == pytest.approx(summary["mesh_area"], rel=1e-6)
+        areas.append(summary["mesh_area"])
+    assert areas[0] == pytest.approx(areas[1], rel=0.03)
+    assert areas[1] == pytest.approx(np.pi * RADIUS**2, rel=0.15)  # the disk (+8% after 200 tiny steps)
+    with pytest.raises(ConfigError, match="resolution=4"):
+        extract_checkpoint(app_cfg(ExtractConfig, ckpt_path=ckpt, resolution=4))
+
+
+def disk_mesh(z: float) -> trimesh.Trimesh:
+    mesh = trimesh.creation.cylinder(radius=RADIUS, height=1.0, sections=64)
+    top = mesh.faces[np.all(np.isclose(mesh.vertices[mesh.faces][..., 2], 0.5), axis=1)]
+    disk = trimesh.Trimesh(mesh.vertices, top, process=True)
+    disk.apply_translation([0, 0, z - 0.5])
+    return disk
+
+
+def test_evaluate_gives_the_known_distance_of_a_known_pair(run, tmp_path):
+    ckpt = str(run / "checkpoints" / "last.ckpt")
+    disk_mesh(0.0).export(tmp_path / "disk.ply")
+    disk_mesh(0.05).export(tmp_path / "lifted.ply")
+    metrics = evaluate_checkpoint(app_cfg(EvaluateConfig, ckpt_path=ckpt, out_dir=str(tmp_path / "eval"),
+                                          mesh=str(tmp_path / "disk.ply"), target=str(tmp_path / "lifted.ply"),
+                                          samples=2000, mass_samples=8192))
+    # every point of the lifted disk lies 0.05 above the disk, and conversely
+    assert metrics["ucd"] == pytest.approx(0.05, abs=1e-9)
+    assert metrics["ucd_reverse"] == pytest.approx(0.05, abs=1e-9)
+    assert metrics["chamfer"] == pytest.approx(0.05, abs=1e-9)
+    assert metrics["mesh_area"] == pytest.approx(disk_mesh(0.0).area)
+    assert json.loads((tmp_path / "eval" / "metrics.json").read_text()) == metrics
+    # the run's own loss and mesh come back from its checkpoint alone
+    own = evaluate_checkpoint(app_cfg(EvaluateConfig, ckpt_path=ckpt, out_dir=str(tmp_path / "own"),
+                                      target=str(run / "mesh.ply"), samples=2000))
+    trained = json.loads((run / "metrics.json").read_text())
+    assert own["loss"] == pytest.approx(trained["loss"], rel=1e-6)
+    assert own["mesh_area"] == pytest.approx(trained["mesh_area"], rel=1e-6)
+    assert own["ucd"] < 1e-6
+    with pytest.raises(UserInputError, match="target='.*nope.ply' does not exist"):
+        evaluate_checkpoint(app_cfg(EvaluateConfig, ckpt_path=ckpt, target=str(tmp_path / "nope.ply")))
+
+
+def test_cli_prints_one_sentence_for_bad_input(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "deepcurrents.extract", f"ckpt_path={tmp_path / 'x.ckpt'}"],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == f"error: ckpt_path='{tmp_path / 'x.ckpt'}' does not exist."
+    assert not list(tmp_path.iterdir())  # no Hydra run directory, no logs left behind
+
+
+def sweep_overrides(spec: dict) -> list[str]:
+    """The Hydra overrides a W&B agent passes: the command's fixed ones and one value per parameter."""
+    fixed = [a for a in spec["command"] if "=" in a and not a.startswith("${")]
+    sampled = []
+    for key, p in spec["parameters"].items():
+        sampled.append(f"{key}={p['values'][0] if 'values' in p else p['min']}")
+    return fixed + sampled
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "sweeps").glob("*.yaml")), ids=lambda p: p.name)
+def test_wandb_sweeps_compose(path):
+    spec = yaml.safe_load(path.read_text())
+    assert spec["program"] == "train.py" and (ROOT / spec["program"]).is_file()
+    assert spec["command"][:3] == ["${env}", "python", "${program}"] and "${args_no_hyphens}" in spec["command"]
+    assert spec["metric"]["name"].startswith("final/") and spec["metric"]["goal"] == "minimize"
+    cfg = compose_cfg(sweep_overrides(spec))
+    experiment = next(a.split("=", 1)[1] for a in spec["command"] if a.startswith("experiment="))
+    assert cfg.task_name == experiment
+    for key, p in spec["parameters"].items():  # every searched key is a real setting, and takes the value
+        value = p["values"][0] if "values" in p else p["min"]
+        assert OmegaConf.select(cfg, key) == pytest.approx(value), key
+
+
+@pytest.mark.parametrize("search, experiment", [("minimal_optuna", "minimal_trefoil"),
+                                                ("recon_optuna", "recon_hand")])
+def test_optuna_searches_name_real_settings(search, experiment):
+    cfg = compose_cfg([f"experiment={experiment}", f"hparams_search={search}"], hydra_config=True)
+    assert cfg.hydra.sweeper._target_.endswith("OptunaSweeper") and cfg.hydra.sweeper.direction == "minimize"
+    assert cfg.objective in ("mass_area", "ucd")
+    for key in cfg.hydra.sweeper.params:
+        assert OmegaConf.select(cfg, key) is not None, key
+
+
+def test_slurm_launcher_composes():
+    cfg = compose_cfg(["experiment=minimal_trefoil", "hydra/launcher=submitit_slurm", "hydra.launcher.partition=gpu",
+                       "hydra.sweep.dir=/tmp/sweep"], hydra_config=True)
+    launcher = instantiate(cfg.hydra.launcher)
+    assert type(launcher).__name__ == "SlurmLauncher"
+    assert launcher.params["partition"] == "gpu" and launcher.params["gpus_per_node"] == 1
+
+
+def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
+    sweep = tmp_path / "sweep"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), "-m", "hparams_search=minimal_optuna", "experiment=minimal_trefoil",
+         "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=2", "trainer.enable_progress_bar=false",
+         "trainer.enable_model_summary=false", "data.num_samples=32", "model.net.num_frequencies=8",
+         "model.net.width=8", "model.net.depth=1", "evaluation.mass_samples=1024", "evaluation.mesh.resolution=12",
+         "callbacks.media=null", "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={sweep}"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    values = [json.loads((sweep / str(i) / "metrics.json").read_text())["mass_area"] for i in (0, 1)]
+    best = yaml.safe_load((sweep / "optimization_results.yaml").read_text())
+    assert best["best_value"] == pytest.approx(min(values))
+    table = (sweep / "table.md").read_text().splitlines()
+    assert len(table) == 4 and table[0].startswith("| run | mass_area |")  # header, rule, two trials
