@@ -1,0 +1,196 @@
+"""Interpolate between two training shapes of a family model (paper §5.3, Fig. 6)::
+
+    python -m deepcurrents.interpolate ckpt_path=…/last.ckpt mode=latent a=3 b=12 steps=5
+    python -m deepcurrents.interpolate ckpt_path=… mode=boundary a=3 b=12 steps=5
+    python -m deepcurrents.interpolate ckpt_path=… mode=grid a=3 b=12 steps=5
+
+- ``latent``: z = (1 − t) z_a + t z_b with the boundary of shape ``hold`` (default a) held fixed;
+- ``boundary``: Γ = (1 − t) Γ_a + t Γ_b vertex by vertex (loops are matched across the family at training
+  time, see ``geometry.correspondence``), with the latent code of ``hold`` held fixed;
+- ``grid``: rows interpolate the latent code, columns the boundary (``steps`` × ``steps``), as Fig. 6.
+
+Writes, into ``out_dir`` (default: ``<run>/interpolation/<mode>_<a>_<b>`` next to the checkpoint's run):
+one mesh ``.ply`` and its boundary ``.obj`` per interpolant, ``interpolation.png`` (the grid of pictures)
+and ``interpolation.json`` with each interpolant's ``boundary_error`` (Hausdorff distance between the
+mesh's border and the prescribed Γ: the boundary is the handle, so this is what to watch).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import hydra
+import numpy as np
+import torch
+from hydra.core.config_store import ConfigStore
+from omegaconf import DictConfig
+
+from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.eval.mesh_grid import plot_mesh_grid
+from deepcurrents.eval.metrics import boundary_error
+from deepcurrents.geometry.correspondence import interpolate_loops
+from deepcurrents.geometry.curves import write_curve_file
+from deepcurrents.models.autodecoder import AutodecoderModule, load_autodecoder
+
+log = logging.getLogger("deepcurrents")
+
+MODES = ("latent", "boundary", "grid")
+
+# apps write where they are told (or next to the checkpoint), never into a Hydra run directory
+APP_HYDRA = {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False}}
+APP_DEFAULTS = ["_self_", {"override hydra/job_logging": "stdout"}]
+
+
+@dataclass
+class InterpolateConfig:
+    """``python -m deepcurrents.interpolate`` settings."""
+
+    ckpt_path: str | None = None  # required: a family checkpoint (…/checkpoints/last.ckpt)
+    mode: str = "latent"  # latent | boundary | grid
+    a: int = 0  # training shape indices (rows of the latent table; see per_shape.csv of the run)
+    b: int = 1
+    steps: int = 5  # interpolants per axis, t = 0 … 1 inclusive
+    hold: str = "a"  # which shape's boundary (latent mode) or latent code (boundary mode) is held fixed
+    out_dir: str | None = None
+    resolution: int | None = None  # marching-cubes resolution (default: the run's evaluation.mesh)
+    device: str = "auto"  # auto | cpu | cuda
+    defaults: list[Any] = field(default_factory=lambda: list(APP_DEFAULTS))
+    hydra: Any = field(default_factory=lambda: dict(APP_HYDRA))
+
+
+ConfigStore.instance().store(name="interpolate", node=InterpolateConfig)
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device='{name}' was asked for but no CUDA GPU is available.")
+    return torch.device(name)
+
+
+def default_out_dir(ckpt_path: str, name: str) -> Path:
+    """``<run>/<name>`` for ``<run>/checkpoints/x.ckpt``, else ``<checkpoint folder>/<name>``."""
+    ckpt = Path(ckpt_path).resolve()
+    run = ckpt.parent.parent if ckpt.parent.name == "checkpoints" else ckpt.parent
+    return run / name
+
+
+def load_for_app(cfg: DictConfig) -> AutodecoderModule:
+    """The family model of ``cfg.ckpt_path`` on ``cfg.device``, with ``cfg.resolution`` applied."""
+    if not cfg.get("ckpt_path"):
+        raise ConfigError("ckpt_path=… is required: the checkpoint of a family run (…/checkpoints/last.ckpt).")
+    module = load_autodecoder(cfg.ckpt_path, pick_device(str(cfg.device)))
+    if cfg.get("resolution") is not None:
+        if int(cfg.resolution) < 8:
+            raise ConfigError(f"resolution={cfg.resolution} must be an integer ≥ 8.")
+        module.evaluation["mesh"] = {**dict(module.evaluation.get("mesh", {})), "resolution": int(cfg.resolution)}
+    return module
+
+
+def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.ndarray], shapes: list[int],
+                     out_dir: Path, stem: str) -> dict[str, Any]:
+    """Meshes the member (z, Γ), writes ``<stem>.ply`` and ``<stem>_boundary.obj``. → its record."""
+    result = module.mesh_member(module.member(z, loops), module.meshing_bounds(shapes, loops))
+    mesh = result.mesh
+    mesh.export(out_dir / f"{stem}.ply")
+    write_curve_file(out_dir / f"{stem}_boundary.obj", loops)
+    empty = len(mesh.faces) == 0
+    return {
+        "mesh": f"{stem}.ply", "boundary": f"{stem}_boundary.obj",
+        "boundary_error": None if empty else boundary_error(mesh, loops),
+        "mesh_faces": int(len(mesh.faces)), "mesh_area": float(mesh.area),
+        "boundary_loops_closed": result.zipped_loops, "_mesh": mesh, "_loops": loops,
+    }
+
+
+def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
+    errors = [r["boundary_error"] for r in records if r["boundary_error"] is not None]
+    return {
+        "boundary_error_mean": float(np.mean(errors)) if errors else None,
+        "boundary_error_max": float(np.max(errors)) if errors else None,
+        "empty_meshes": sum(r["boundary_error"] is None for r in records),
+    }
+
+
+def write_outputs(out_dir: Path, records: list[dict[str, Any]], info: dict[str, Any], ncols: int,
+                  figure: str, json_name: str) -> dict[str, Any]:
+    """The picture grid and the JSON report (records without their in-memory meshes)."""
+    titles = [r["title"] for r in records]
+    plot_mesh_grid([r["_mesh"] for r in records], [r["_loops"] for r in records], out_dir / figure,
+                   titles=titles, ncols=ncols)
+    report = {**info, **summarise(records),
+              "items": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records]}
+    (out_dir / json_name).write_text(json.dumps(report, indent=2))
+    return report
+
+
+def interpolate(cfg: DictConfig) -> dict[str, Any]:
+    """Runs one interpolation (see the module docstring). → the report written to interpolation.json."""
+    mode = str(cfg.mode)
+    if mode not in MODES:
+        raise ConfigError(f"mode='{mode}' must be one of {', '.join(MODES)}.")
+    if isinstance(cfg.steps, bool) or not isinstance(cfg.steps, int) or cfg.steps < 2:
+        raise ConfigError(f"steps={cfg.steps!r} must be an integer ≥ 2 (t runs from 0 to 1 inclusive).")
+    if str(cfg.hold) not in ("a", "b"):
+        raise ConfigError(f"hold='{cfg.hold}' must be a or b.")
+    module = load_for_app(cfg)
+    a = module.check_shape_index(cfg.a, "a")
+    b = module.check_shape_index(cfg.b, "b")
+    held = a if str(cfg.hold) == "a" else b
+    out_dir = Path(cfg.out_dir) if cfg.out_dir else default_out_dir(cfg.ckpt_path, f"interpolation/{mode}_{a}_{b}")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    ts = np.linspace(0.0, 1.0, int(cfg.steps))
+    za, zb = module.latent(a), module.latent(b)
+    loops_a, loops_b = module.shape_loops(a), module.shape_loops(b)
+    names = list(module.hparams.shape_names)
+    if mode == "latent":
+        grid = [(t, None) for t in ts]
+    elif mode == "boundary":
+        grid = [(None, t) for t in ts]
+    else:
+        grid = [(tl, tb) for tl in ts for tb in ts]
+    records = []
+    for k, (tl, tb) in enumerate(grid):
+        z = module.latent(held) if tl is None else (1.0 - tl) * za + tl * zb
+        loops = module.shape_loops(held) if tb is None else interpolate_loops(loops_a, loops_b, float(tb))
+        if mode == "grid":
+            i, j = divmod(k, len(ts))
+            stem, title = f"grid_{i:02d}_{j:02d}", f"latent {tl:.2f}, boundary {tb:.2f}"
+        else:
+            t = tl if tb is None else tb
+            stem, title = f"{mode}_{k:02d}", f"{mode} t = {t:.2f}"
+        rec = mesh_and_measure(module, z, loops, [a, b], out_dir, stem)
+        rec.update({"t_latent": None if tl is None else float(tl), "t_boundary": None if tb is None else float(tb),
+                    "title": title})
+        log.info("%s: boundary_error %s", stem, rec["boundary_error"])
+        records.append(rec)
+    info = {"mode": mode, "a": a, "b": b, "a_name": names[a], "b_name": names[b], "steps": int(cfg.steps),
+            "hold": str(cfg.hold), "ckpt_path": str(cfg.ckpt_path)}
+    report = write_outputs(out_dir, records, info, len(ts), "interpolation.png", "interpolation.json")
+    print(f"wrote {len(records)} meshes, interpolation.png and interpolation.json to {out_dir}")
+    return report
+
+
+def run_app(fn: Callable[[DictConfig], Any], cfg: DictConfig) -> Any:
+    """Runs an app, turning user errors into one sentence on stderr and exit status 2 (no traceback)."""
+    try:
+        return fn(cfg)
+    except UserInputError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(2)
+
+
+@hydra.main(version_base="1.3", config_path=None, config_name="interpolate")
+def main(cfg: DictConfig) -> None:
+    run_app(interpolate, cfg)
+
+
+if __name__ == "__main__":
+    main()

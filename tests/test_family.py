@@ -1,0 +1,437 @@
+"""Families of surfaces: the family current, augmentation, loop matching, the DataModule, training (a tiny
+family beats an untrained model), DDP on two CPU processes, interpolation and generation apps, bad inputs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from hydra import compose, initialize_config_dir
+from scipy.spatial.transform import Rotation
+
+from deepcurrents.data.augment import AugmentationRanges, augment_mesh, euler_rotation, principal_directions
+from deepcurrents.data.family import FamilyDataModule, FamilyError, load_family
+from deepcurrents.errors import ConfigError
+from deepcurrents.eval.metrics import point_mesh_distance
+from deepcurrents.geometry import biot_savart, hopf_link
+from deepcurrents.geometry.correspondence import interpolate_loops, resample_loop
+from deepcurrents.geometry.curves import BoundaryError, read_curve_file, write_curve_file
+from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent, pad_loops
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = str(ROOT / "conf")
+
+
+# ------------------------------------------------------------------------------------------ fixtures
+def disc_mesh(height, rings: int = 6, sectors: int = 24, radius: float = 0.35, center=(0.0, 0.0, 0.0)):
+    """A polar-grid disc z = height(x, y) (one boundary loop, normals towards +z), shifted by ``center``."""
+    r = np.repeat(np.arange(1, rings + 1) / rings * radius, sectors)
+    t = np.tile(np.arange(sectors) / sectors * 2 * np.pi, rings)
+    xy = np.concatenate([[[0.0, 0.0]], np.stack([r * np.cos(t), r * np.sin(t)], 1)])
+    v = np.concatenate([xy, height(xy[:, 0], xy[:, 1])[:, None]], 1) + np.asarray(center)
+    j = np.arange(sectors)
+    faces = [np.stack([np.zeros(sectors, int), 1 + j, 1 + (j + 1) % sectors], 1)]
+    for i in range(rings - 1):
+        a, b = 1 + i * sectors, 1 + (i + 1) * sectors
+        faces += [np.stack([a + j, b + j, b + (j + 1) % sectors], 1),
+                  np.stack([a + j, b + (j + 1) % sectors, a + (j + 1) % sectors], 1)]
+    return trimesh.Trimesh(v, np.concatenate(faces), process=False)
+
+
+SHAPES = {
+    "000_cap": lambda x, y: 1.6 * (0.35**2 - x**2 - y**2),
+    "001_saddle": lambda x, y: 1.5 * (x**2 - y**2),
+    "002_wave": lambda x, y: 0.08 * np.sin(9 * x) - 0.6 * (0.35**2 - x**2 - y**2),
+}
+
+
+def open_cylinder(sectors: int = 20, rows: int = 5, shuffle: int | None = None) -> trimesh.Trimesh:
+    """A tube (two boundary loops, at z = ±0.3); ``shuffle`` renumbers its vertices randomly."""
+    t = np.arange(sectors) / sectors * 2 * np.pi
+    z = np.linspace(-0.3, 0.3, rows)
+    v = np.stack([np.tile(0.3 * np.cos(t), rows), np.tile(0.3 * np.sin(t), rows), np.repeat(z, sectors)], 1)
+    j = np.arange(sectors)
+    faces = []
+    for i in range(rows - 1):
+        a, b = i * sectors, (i + 1) * sectors
+        faces += [np.stack([a + j, a + (j + 1) % sectors, b + j], 1),
+                  np.stack([a + (j + 1) % sectors, b + (j + 1) % sectors, b + j], 1)]
+    f = np.concatenate(faces)
+    if shuffle is not None:
+        perm = np.random.default_rng(shuffle).permutation(len(v))
+        inv = np.argsort(perm)
+        v, f = v[perm], inv[f]
+    return trimesh.Trimesh(v, f, process=False)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """One torch thread: the test machine is shared, and two threads under contention run slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+# a training family: three different small discs, apart in space so that a few hundred CPU steps suffice
+CENTRES = {"000_cap": (-0.5, 0.0, 0.0), "001_saddle": (0.5, 0.0, 0.0), "002_wave": (0.0, 0.0, 0.55)}
+
+
+@pytest.fixture(scope="module")
+def family_dir(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("discs")
+    for name, h in SHAPES.items():
+        disc_mesh(h, radius=0.25, center=CENTRES[name]).export(d / f"{name}.ply")
+    return d
+
+
+def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
+    """The CPU preset shrunk further. No augmentation and the surface loss weighted ×5 so that the small
+    network leaves the flat-f start within ~100 steps (augmentation has its own tests above)."""
+    return [
+        "experiment=latent_hands", "preset=cpu", "logger=none", f"data.path={path}", f"paths.output_dir={out}",
+        f"trainer.max_steps={steps}", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
+        "data.meshes_per_batch=3", "data.num_samples=256", "data.num_surface_samples=192", "data.num_workers=0",
+        "data.augment=false", "model.latent_dim=16", "model.boundary_dim=16", "model.surface_weight=5",
+        "model.optim.lr=2e-3", f"model.optim.step_size={steps}", "model.evaluation.ucd_samples=4000",
+        "evaluation.mesh.resolution=40", f"callbacks.model_checkpoint.every_n_train_steps={steps}",
+        "callbacks.media=null",
+    ]
+
+
+def compose_cfg(overrides: list[str]):
+    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
+        return compose(config_name="train", overrides=overrides)
+
+
+@pytest.fixture(scope="module")
+def trained(_one_thread, family_dir, tmp_path_factory):
+    """A tiny family trained on the CPU, and the same model untrained, both evaluated."""
+    from deepcurrents.train import build, train
+
+    out = tmp_path_factory.mktemp("run")
+    cfg = compose_cfg(tiny_overrides(family_dir, out, STEPS))
+    metrics = train(cfg, out_dir=out)
+    datamodule, untrained = build(cfg)
+    base = untrained.final_evaluation(out / "untrained", meshes=datamodule.meshes)
+    return out, metrics, base
+
+
+STEPS = 150
+
+
+# -------------------------------------------------------------------------------------- family current
+def small_family(num_loops: int = 1, rff: bool = True, zero_init_output: bool = False) -> FamilyCurrent:
+    torch.manual_seed(0)
+    return FamilyCurrent(num_shapes=3, num_loops=num_loops, latent_dim=4, boundary_dim=5, num_frequencies=8,
+                         width=16, depth=2, rff=rff, zero_init_output=zero_init_output).double()
+
+
+def test_zero_initialised_output_starts_every_member_at_omega_equals_alpha():
+    fam = small_family(zero_init_output=True)
+    loops = [[torch.tensor(hopf_link(10)[0])], [torch.tensor(hopf_link(10)[1])]]
+    padded, mask = pad_loops(loops)
+    x = torch.rand(2, 5, 3, dtype=torch.float64)
+    code = fam.code(fam.latents.weight[:2], padded, mask)
+    f, omega = fam(x, code, padded, mask, create_graph=False)
+    assert torch.equal(f, f[0, :1].expand_as(f))
+    torch.testing.assert_close(omega, fam.alpha(x, loops))
+
+
+def test_decoder_input_is_code_then_fourier_features():
+    fam = small_family(num_loops=2)
+    x = torch.rand(2, 7, 3, dtype=torch.float64) * 2 - 1
+    code = torch.randn(2, fam.code_dim, dtype=torch.float64)
+    full = torch.cat([code[:, None].expand(-1, 7, -1), fam.encoding(x)], -1)  # [z | z_Γ1 | z_Γ2 | RFF(x)]
+    torch.testing.assert_close(fam.f(x, code), fam.mlp(full).squeeze(-1), rtol=0, atol=1e-12)
+    assert fam.code_dim == 4 + 2 * 5
+    z = fam.latents.weight[:2]
+    loops = [torch.tensor(lp) for lp in hopf_link(9)]
+    padded, mask = pad_loops([loops, loops])
+    code = fam.code(z, padded, mask)
+    torch.testing.assert_close(code[:, :4], z)
+    torch.testing.assert_close(code[0, 4:9], fam.encoders[0](loops[0][None])[0])
+    torch.testing.assert_close(code[0, 9:], fam.encoders[1](loops[1][None])[0])
+
+
+@pytest.mark.parametrize("rff", [True, False])
+def test_omega_is_grad_f_plus_scaled_biot_savart_of_each_shape(rff):
+    fam = small_family(rff=rff)
+    shapes = [[torch.tensor(hopf_link(12)[0])], [torch.tensor(hopf_link(9)[1])]]  # different lengths
+    padded, mask = pad_loops(shapes)
+    code = torch.randn(2, fam.code_dim, dtype=torch.float64)
+    x = torch.rand(2, 5, 3, dtype=torch.float64) * 1.6 - 0.8
+    f, omega = fam(x, code, padded, mask, create_graph=False)
+    h = 1e-6  # central differences of f, independent of autograd
+    fd = torch.stack([(fam.f(x + h * e, code) - fam.f(x - h * e, code)) / (2 * h)
+                      for e in torch.eye(3, dtype=torch.float64)], -1)
+    alpha = torch.stack([biot_savart(x[s], shapes[s]) for s in range(2)]) * 1e-3
+    torch.testing.assert_close(omega, fd + alpha, rtol=1e-6, atol=1e-8)
+    torch.testing.assert_close(f, fam.f(x, code))
+
+
+def test_second_order_gradients_reach_codes_and_encoders():
+    fam = small_family()
+    loops = [[torch.tensor(hopf_link(10)[0])]] * 2
+    padded, mask = pad_loops(loops)
+    code = fam.code(fam.latents(torch.tensor([0, 2])), padded, mask)
+    _, omega = fam(torch.rand(2, 6, 3, dtype=torch.float64), code, padded, mask, create_graph=True)
+    omega.norm(dim=-1).mean().backward()
+    grads = fam.latents.weight.grad
+    assert grads[0].abs().sum() > 0 and grads[2].abs().sum() > 0 and grads[1].abs().sum() == 0
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in fam.encoders.parameters())
+
+
+def test_conditioned_current_is_one_member_of_the_batch():
+    fam = small_family()
+    loop = torch.tensor(hopf_link(10)[0])
+    z = fam.latents.weight[1].detach()
+    member = ConditionedCurrent(fam.float(), z.float(), [loop.float()])
+    padded, mask = pad_loops([[loop.float()]])
+    x = torch.rand(9, 3) * 2 - 1
+    f, omega = fam(x[None], fam.code(z[None].float(), padded, mask), padded, mask, create_graph=False)
+    mf, momega = member.evaluate(x)
+    torch.testing.assert_close(mf, f[0])
+    torch.testing.assert_close(momega, omega[0])
+    assert member.dim == 3 and len(member.loops) == 1
+
+
+# ---------------------------------------------------------------------------------------- augmentation
+def test_euler_rotation_matches_scipy():
+    angles = np.array([0.1, -0.15, 0.07])
+    np.testing.assert_allclose(euler_rotation(angles), Rotation.from_euler("xyz", angles).as_matrix(), atol=1e-12)
+
+
+def test_augmentation_stays_in_its_ranges(family_dir):
+    mesh = load_family([family_dir / "001_saddle.ply"])[0]
+    loop = mesh.vertices[mesh.loops[0]]
+    gen = torch.Generator().manual_seed(3)
+    ranges = AugmentationRanges()
+    for _ in range(20):
+        v, aug = augment_mesh(mesh.skinning, mesh.loops, gen, ranges)
+        assert np.abs(np.rad2deg(aug.angles)).max() <= 10.0 and np.all(np.abs(aug.shift) <= 0.05)
+        assert np.all((aug.scales >= 0.85) & (aug.scales <= 1.15))
+        # undo the rigid part: the loop must be the original scaled about its centroid along its principal axes
+        unrigid = aug.centre + (v - aug.shift - aug.centre) @ aug.rotation
+        p = principal_directions(loop)
+        c = loop.mean(0)
+        coords = (unrigid[mesh.loops[0]] - c) @ p
+        np.testing.assert_allclose(coords, ((loop - c) @ p) * [*aug.scales[0], 1.0], atol=1e-10)
+        assert np.abs(v).max() <= ranges.bound
+
+
+def test_augmentation_keeps_a_mesh_near_the_wall_inside_the_domain(tmp_path):
+    disc_mesh(SHAPES["000_cap"], center=(0.6, -0.55, 0.7)).export(tmp_path / "edge.ply")
+    mesh = load_family([tmp_path / "edge.ply"])[0]
+    gen = torch.Generator().manual_seed(0)
+    ranges = AugmentationRanges(bound=0.98)
+    worst = max(np.abs(augment_mesh(mesh.skinning, mesh.loops, gen, ranges)[0]).max() for _ in range(40))
+    assert worst <= 0.98 + 1e-12
+    assert np.abs(mesh.vertices).max() + 0.05 > 0.98  # without the restriction some shifts would leave
+
+
+# ------------------------------------------------------------------------------- loop matching and data
+def test_loops_are_matched_and_aligned_across_meshes(tmp_path):
+    open_cylinder().export(tmp_path / "a.ply")
+    open_cylinder(shuffle=7).export(tmp_path / "b.ply")
+    meshes = load_family([tmp_path / "a.ply", tmp_path / "b.ply"])
+    ref = meshes[0].loop_points()
+    other = meshes[1].loop_points()
+    for b in range(2):
+        np.testing.assert_allclose(other[b], ref[b], atol=1e-6)  # same loop, same start, same direction
+
+
+def test_datamodule_batches_and_model_kwargs(family_dir):
+    dm = FamilyDataModule(str(family_dir), meshes_per_batch=2, num_samples=64, num_surface_samples=32)
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["x"].shape == (2, 64, 3) and batch["metric"].shape == (2, 64, 3, 3)
+    assert batch["surface_points"].shape == (2, 32, 3) and batch["epsilon"].shape == (2, 32)
+    assert batch["loops"].shape == (2, 1, 24, 3) and batch["loop_mask"].all()
+    assert len(set(batch["index"].tolist())) == 2  # without replacement
+    kw = dm.model_kwargs()
+    assert kw["num_shapes"] == 3 and kw["num_loops"] == 1 and kw["shape_names"][0] == "000_cap.ply"
+    assert dm.shard(1, 2).tolist() == [1] and dm.shard(0, 2).tolist() == [0, 2]
+
+
+def test_boundary_interpolation_is_vertexwise_and_resamples_unequal_loops():
+    a, b = hopf_link(8)[0], hopf_link(8)[1]
+    np.testing.assert_allclose(interpolate_loops([a], [b], 0.25)[0], 0.75 * a + 0.25 * b)
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    np.testing.assert_allclose(resample_loop(square, 8)[1], [0.5, 0, 0])
+    assert interpolate_loops([square], [a], 0.5)[0].shape == (8, 3)
+
+
+# --------------------------------------------------------------------------------------------- bad input
+def test_meshes_with_different_loop_counts_are_one_sentence(tmp_path):
+    disc_mesh(SHAPES["000_cap"]).export(tmp_path / "a.ply")
+    open_cylinder().export(tmp_path / "b.ply")
+    with pytest.raises(FamilyError, match="has 2 boundary loops but 'a.ply' has 1"):
+        FamilyDataModule(str(tmp_path))
+
+
+def test_missing_folder_and_closed_mesh_are_one_sentence(tmp_path):
+    with pytest.raises(FamilyError, match="make data"):
+        FamilyDataModule(str(tmp_path / "nowhere"))
+    trimesh.creation.icosphere(subdivisions=1, radius=0.3).export(tmp_path / "ball.ply")
+    with pytest.raises(FamilyError, match="closed"):
+        FamilyDataModule(str(tmp_path))
+    with pytest.raises(ConfigError, match="meshes_per_batch"):
+        FamilyDataModule(str(tmp_path), meshes_per_batch=0)
+
+
+# ------------------------------------------------------------------------------------ training and apps
+def per_shape(path: Path) -> list[dict]:
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_tiny_family_trains_and_beats_an_untrained_model(trained):
+    out, metrics, base = trained
+    assert (out / "checkpoints" / "last.ckpt").is_file() and (out / "meshes.png").is_file()
+    assert len(list((out / "meshes").glob("*.ply"))) == 3
+    assert json.loads((out / "metrics.json").read_text())["ucd"] == pytest.approx(metrics["ucd"])
+    assert metrics["empty_meshes"] == 0 and metrics["steps"] == STEPS
+    rows, base_rows = per_shape(out / "per_shape.csv"), per_shape(out / "untrained" / "per_shape.csv")
+    for row, b in zip(rows, base_rows, strict=True):
+        untrained_ucd = float(b["ucd"]) if b["ucd"] else np.inf  # an empty mesh has no surface at all
+        untrained_rev = float(b["ucd_reverse"]) if b["ucd_reverse"] else np.inf
+        # target → mesh (the paper's UCD) and mesh → target (spurious sheets), independently recomputed
+        target = trimesh.load(trained_dir(out) / row["name"], process=False)
+        mesh = trimesh.load(next((out / "meshes").glob(f"{int(row['index']):03d}_*.ply")), process=False)
+        ucd = point_mesh_distance(target.sample(20000, seed=1), mesh).mean()
+        assert ucd == pytest.approx(float(row["ucd"]), rel=0.1)
+        assert ucd < 0.5 * untrained_ucd, (row["name"], ucd, untrained_ucd)
+        assert float(row["ucd_reverse"]) < 0.25 * untrained_rev, (row["name"], row["ucd_reverse"], untrained_rev)
+    assert metrics["ucd_worst"] < 0.025  # discs of radius 0.25
+
+
+def trained_dir(out: Path) -> Path:
+    """The family folder a run was trained on (from the run configuration stored in its checkpoint)."""
+    ckpt = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
+    return Path(ckpt["deepcurrents"]["config"]["data"]["path"])
+
+
+def test_resuming_with_another_family_is_one_sentence(trained, tmp_path):
+    from deepcurrents.models.autodecoder import CheckpointMismatchError
+    from deepcurrents.train import train
+
+    out, _, _ = trained
+    for name in ("000_cap", "001_saddle"):  # two meshes instead of three
+        disc_mesh(SHAPES[name]).export(tmp_path / f"{name}.ply")
+    resume = f"ckpt_path={out / 'checkpoints' / 'last.ckpt'}"
+    cfg = compose_cfg(tiny_overrides(tmp_path, tmp_path / "run", STEPS + 10) + [resume])
+    with pytest.raises(CheckpointMismatchError, match="another family"):
+        train(cfg, out_dir=tmp_path / "run")
+
+
+def brute_force_border_hausdorff(mesh: trimesh.Trimesh, loops: list[np.ndarray], step: float = 5e-4) -> float:
+    """Hausdorff distance between a mesh's border edges and closed loops, by dense points on both sides
+    and all pairwise distances (independent of the package's polyline code)."""
+    edges = mesh.edges_sorted
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    border = unique[counts == 1]
+
+    def dense(a, b):
+        n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / step).astype(int))
+        t = np.concatenate([np.arange(k) / k for k in n])
+        return np.repeat(a, n, 0) + t[:, None] * np.repeat(b - a, n, 0)
+
+    v = np.asarray(mesh.vertices)
+    p = dense(v[border[:, 0]], v[border[:, 1]])
+    q = np.concatenate([dense(lp, np.roll(lp, -1, 0)) for lp in loops])
+    d = np.full(len(p), np.inf)
+    e = np.full(len(q), np.inf)
+    for i in range(0, len(p), 2000):
+        block = np.linalg.norm(p[i:i + 2000, None] - q[None], axis=-1)
+        d[i:i + 2000] = block.min(1)
+        e = np.minimum(e, block.min(0))
+    return float(max(d.max(), e.max()))
+
+
+def run_module(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=ROOT,
+                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
+
+
+def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp_path):
+    from omegaconf import OmegaConf
+
+    from deepcurrents.generate import GenerateConfig, generate
+    from deepcurrents.interpolate import InterpolateConfig, interpolate
+
+    out, _, _ = trained
+    ckpt = str(out / "checkpoints" / "last.ckpt")
+
+    def cfg(kind, **kw):
+        node = OmegaConf.structured(kind(ckpt_path=ckpt, resolution=32, **kw))
+        return OmegaConf.masked_copy(node, [k for k in node if k not in ("defaults", "hydra")])
+
+    report = interpolate(cfg(InterpolateConfig, mode="grid", a=0, b=2, steps=2, out_dir=str(tmp_path / "g")))
+    assert len(report["items"]) == 4 and (tmp_path / "g" / "interpolation.png").is_file()
+    for item in report["items"]:
+        assert (tmp_path / "g" / item["mesh"]).is_file() and (tmp_path / "g" / item["boundary"]).is_file()
+    for item in report["items"]:  # the reported boundary adherence, recomputed from the written files
+        mesh = trimesh.load(tmp_path / "g" / item["mesh"], process=False)
+        if item["boundary_error"] is None:
+            assert len(mesh.faces) == 0
+            continue
+        loops = read_curve_file(tmp_path / "g" / item["boundary"])
+        expected = brute_force_border_hausdorff(mesh, loops)
+        assert item["boundary_error"] == pytest.approx(expected, rel=0.05, abs=2e-3)
+    report = interpolate(cfg(InterpolateConfig, mode="boundary", a=1, b=2, steps=3, out_dir=str(tmp_path / "b")))
+    assert [it["t_boundary"] for it in report["items"]] == [0.0, 0.5, 1.0]
+    ends = [read_curve_file(tmp_path / "b" / report["items"][k]["boundary"])[0] for k in (0, 2)]
+    middle = read_curve_file(tmp_path / "b" / report["items"][1]["boundary"])[0]
+    np.testing.assert_allclose(middle, 0.5 * (ends[0] + ends[1]), atol=1e-6)  # vertex by vertex
+
+    # an edited rim: the saddle's rim raised and stretched, vertices renumbered from another start, reversed
+    rim = load_family([family_dir / "001_saddle.ply"])[0].loop_points()[0] * [1.2, 0.9, 1.0] + [0.0, 0.0, 0.1]
+    write_curve_file(tmp_path / "edited_rim.obj", [np.roll(rim, 5, 0)[::-1]])
+    report = generate(cfg(GenerateConfig, curve=str(tmp_path / "edited_rim.obj"), latent=1,
+                          out_dir=str(tmp_path / "gen")))
+    assert (tmp_path / "gen" / "edited_rim_latent1.ply").is_file()
+    assert (tmp_path / "gen" / "edited_rim_latent1.png").is_file()
+    item = report["items"][0]
+    gen_loops = read_curve_file(tmp_path / "gen" / item["boundary"])
+    assert len(gen_loops) == 1 and np.abs(np.roll(rim, 5, 0) - gen_loops[0]).max() < 1e-6  # orientation restored
+    mesh = trimesh.load(tmp_path / "gen" / item["mesh"], process=False)
+    # (5%: eval.meshing.border_loops skips the border edges at a vertex where two border loops touch)
+    expected = brute_force_border_hausdorff(mesh, gen_loops)
+    assert item["boundary_error"] == pytest.approx(expected, rel=0.05, abs=2e-3)
+
+    # bad inputs: one sentence each
+    write_curve_file(tmp_path / "two.obj", hopf_link(20))
+    with pytest.raises(BoundaryError, match="has 2 loops but this family's shapes have 1"):
+        generate(cfg(GenerateConfig, curve=str(tmp_path / "two.obj"), latent=0, out_dir=str(tmp_path / "x")))
+    with pytest.raises(ConfigError, match="latent=7 is not a training shape: this checkpoint has 3"):
+        generate(cfg(GenerateConfig, curve=str(tmp_path / "edited_rim.obj"), latent=7, out_dir=str(tmp_path / "x")))
+    with pytest.raises(ConfigError, match="b=-1 is not a training shape"):
+        interpolate(cfg(InterpolateConfig, a=0, b=-1, out_dir=str(tmp_path / "x")))
+    with pytest.raises(ConfigError, match="mode='sideways' must be one of"):
+        interpolate(cfg(InterpolateConfig, mode="sideways", out_dir=str(tmp_path / "x")))
+    # ... and on the command line: the sentence, exit status 2, no traceback
+    proc = run_module("deepcurrents.interpolate", f"ckpt_path={tmp_path / 'edited_rim.obj'}", "a=0", "b=1")
+    assert proc.returncode == 2 and "error: ckpt_path=" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_ddp_on_two_cpu_processes_end_to_end(family_dir, tmp_path):
+    out = tmp_path / "ddp"
+    overrides = [o for o in tiny_overrides(family_dir, out, 4) if not o.startswith("paths.")]
+    proc = subprocess.run(
+        [sys.executable, "train.py", *overrides, "trainer=ddp_cpu", f"hydra.run.dir={out}",
+         "model.evaluation.max_shapes=1"],
+        capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONWARNINGS": "ignore"}, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["steps"] == 4 and metrics["shapes_evaluated"] == 1
+    ckpt = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
+    assert ckpt["global_step"] == 4
