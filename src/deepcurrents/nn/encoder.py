@@ -60,7 +60,9 @@ class BoundaryEncoder(nn.Module):
     def __init__(self, channels: int = 256, in_dim: int = 3, kernel_sizes: tuple[int, ...] = (5, 3, 3)):
         super().__init__()
         dims = [in_dim] + [channels] * len(kernel_sizes)
-        self.convs = nn.ModuleList(CircularConv1d(a, b, k) for a, b, k in zip(dims[:-1], dims[1:], kernel_sizes))
+        self.convs = nn.ModuleList(
+            CircularConv1d(a, b, k) for a, b, k in zip(dims[:-1], dims[1:], kernel_sizes, strict=True)
+        )
         self.out_dim = channels
 
     def forward(self, vertices: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
