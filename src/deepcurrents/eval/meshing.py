@@ -352,10 +352,12 @@ def extract_surface(
 
 @torch.no_grad()
 def extract_curve_2d(
-    current, resolution: int = 256, delta: float = 5e-3, boundary_tube: float = 0.03, chunk_size: int = 1 << 16
+    current, resolution: int = 256, delta: float = 5e-3, boundary_tube: float = 0.03, min_alignment: float = 0.5,
+    chunk_size: int = 1 << 16,
 ) -> list[np.ndarray]:
     """The curve of a 2D current: the level set f = s (s = mean of f near the boundary points), kept where
-    |ω| ≥ δ, cut at distance τ from the points and joined to them by straight segments.
+    |ω| ≥ δ and cos(ω, ∇f) ≥ ``min_alignment`` (see ``extract_surface``), cut at distance τ from the points
+    and joined to them by straight segments.
 
     Returns a list of polylines, each (K, 2).
     """
@@ -375,8 +377,13 @@ def extract_curve_2d(
         pts = contour * h - 1.0
         dist = np.linalg.norm(pts[:, None] - poles[None], axis=-1).min(1)
         mid = 0.5 * (pts[1:] + pts[:-1])
-        _, omega = current.evaluate(torch.as_tensor(mid, dtype=torch.float32, device=dev))
-        good = (omega.norm(dim=-1).cpu().numpy() >= delta) & (dist[1:] >= tube) & (dist[:-1] >= tube)
+        mid_t = torch.as_tensor(mid, dtype=torch.float32, device=dev)
+        _, omega = current.evaluate(mid_t)
+        grad_f = omega - current.alpha(mid_t)
+        # as in 3D: on the curve the current flows along ∇f; on the complementary level curve it does not
+        cos = (omega * grad_f).sum(-1) / (omega.norm(dim=-1) * grad_f.norm(dim=-1)).clamp_min(1e-30)
+        carries = ((omega.norm(dim=-1) >= delta) & (cos >= min_alignment)).cpu().numpy()
+        good = carries & (dist[1:] >= tube) & (dist[:-1] >= tube)
         # split into runs of good segments
         idx = np.flatnonzero(good)
         if len(idx) == 0:
