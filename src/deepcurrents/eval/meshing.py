@@ -391,10 +391,13 @@ def extract_curve_2d(
         runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
         for run in runs:
             piece = pts[run[0]: run[-1] + 2]
+            joined = 0
             for end in (0, -1):  # join ends that stopped at the tube to their pole
                 d = np.linalg.norm(poles - piece[end], axis=1)
                 if d.min() < 1.5 * tube:
                     p = poles[d.argmin()][None]
                     piece = np.concatenate([p, piece]) if end == 0 else np.concatenate([piece, p])
-            curves.append(piece)
+                    joined += 1
+            if joined:  # the current's curve ends on the boundary points; loose pieces are level-set debris
+                curves.append(piece)
     return curves
