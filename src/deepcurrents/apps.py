@@ -27,7 +27,7 @@ def register_app(name: str, schema: type, doc: str | None = None) -> None:
     heads ``--help``."""
     cs = ConfigStore.instance()
     cs.store(name=f"{name}_schema", node=schema)
-    header = (doc or f"python -m deepcurrents.{name} ckpt_path=… [key=value …]").replace("${", "$\\{")
+    header = (doc or f"python -m deepcurrents.{name} ckpt_path=… [key=value …]").replace("${", "\\${")
     cs.store(name=name, node={
         "defaults": [f"{name}_schema", "_self_", {"override hydra/job_logging": "stdout"}],
         "hydra": {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False},
