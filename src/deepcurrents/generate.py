@@ -2,40 +2,33 @@
 
     python -m deepcurrents.generate ckpt_path=…/last.ckpt curve=edited_rim.obj latent=3
 
-``curve`` is a curve file (``.obj`` polylines, one ``l`` per loop; ``.txt``/``.npy`` for one loop) with
-as many loops as the family's shapes have. Its loops are matched to those of training shape ``latent``
-by their centroids (the order in the file does not matter), and a loop that turns against its match is
-reversed (with a warning), so that the current points the way the family's surfaces do.
+``curve`` is a curve file (``.obj`` polylines, one ``l`` per loop; ``.txt``/``.npy`` for one loop; or a
+named curve such as ``circle``) with as many loops as the family's shapes have. Its loops are matched to
+those of training shape ``latent`` by their centroids (the order in the file does not matter), and a loop
+that turns against its match is reversed (with a warning), so that the current points the way the
+family's surfaces do.
 
 Writes ``<name>.ply`` (the surface, its border on the new Γ), ``<name>_boundary.obj`` (Γ as used),
 ``<name>.png`` and ``<name>.json`` (boundary_error, area, ...) into ``out_dir`` (default:
-``<run>/generated`` next to the checkpoint's run), ``name`` defaulting to ``<curve stem>_latent<k>``.
+``<run>/checkpoints/last/generated`` beside the checkpoint), ``name`` defaulting to ``<curve stem>_latent<k>``.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import hydra
 import numpy as np
-from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig
+from omegaconf import MISSING, DictConfig
 
+from deepcurrents.apps import register_app, run_app
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry.correspondence import match_loops, orientation_agrees
-from deepcurrents.geometry.curves import BoundaryError, read_curve_file, validate_loops
-from deepcurrents.interpolate import (
-    APP_DEFAULTS,
-    APP_HYDRA,
-    default_out_dir,
-    load_for_app,
-    mesh_and_measure,
-    run_app,
-    write_outputs,
-)
+from deepcurrents.geometry.curves import BoundaryError, load_boundary
+from deepcurrents.interpolate import app_out_dir, load_for_app, mesh_and_measure, write_outputs
 
 log = logging.getLogger("deepcurrents")
 
@@ -44,19 +37,17 @@ log = logging.getLogger("deepcurrents")
 class GenerateConfig:
     """``python -m deepcurrents.generate`` settings."""
 
-    ckpt_path: str | None = None  # required: a family checkpoint
-    curve: str | None = None  # required: the new boundary (curve file)
+    ckpt_path: str = MISSING  # a family checkpoint (…/checkpoints/last.ckpt)
+    curve: str = MISSING  # the new boundary: a curve file (or a named curve: circle, trefoil, hopf, …)
     latent: int = 0  # the training shape whose latent code is used
     curve_scale: float = 1.0  # multiplies the curve's coordinates
     name: str | None = None  # output file stem (default <curve stem>_latent<k>)
     out_dir: str | None = None
     resolution: int | None = None
     device: str = "auto"
-    defaults: list[Any] = field(default_factory=lambda: list(APP_DEFAULTS))
-    hydra: Any = field(default_factory=lambda: dict(APP_HYDRA))
 
 
-ConfigStore.instance().store(name="generate", node=GenerateConfig)
+register_app("generate", GenerateConfig, __doc__)
 
 
 def prepare_loops(loops: list[np.ndarray], reference: list[np.ndarray], source: str) -> list[np.ndarray]:
@@ -80,21 +71,18 @@ def prepare_loops(loops: list[np.ndarray], reference: list[np.ndarray], source: 
 
 def generate(cfg: DictConfig) -> dict[str, Any]:
     """Meshes the family member (z_latent, Γ from the curve file). → the report written to <name>.json."""
-    if not cfg.get("curve"):
-        raise ConfigError("curve=… is required: a curve file (.obj with one 'l' per loop, .txt or .npy).")
     if not float(cfg.curve_scale) > 0:
         raise ConfigError(f"curve_scale={cfg.curve_scale} must be positive.")
     module = load_for_app(cfg)
     k = module.check_shape_index(cfg.latent, "latent")
     source = f"curve='{cfg.curve}'"
-    loops = [lp * float(cfg.curve_scale) for lp in read_curve_file(str(cfg.curve))]
-    loops = prepare_loops(validate_loops(loops, source), module.shape_loops(k), source)
+    loops = prepare_loops(load_boundary(str(cfg.curve), scale=float(cfg.curve_scale)).loops, module.shape_loops(k),
+                          source)
     name = cfg.name or f"{Path(str(cfg.curve)).stem}_latent{k}"
-    out_dir = Path(cfg.out_dir) if cfg.out_dir else default_out_dir(cfg.ckpt_path, "generated")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = app_out_dir(cfg, "generated")
     rec = mesh_and_measure(module, module.latent(k), loops, [k], out_dir, name)
-    rec["title"] = f"{name}: boundary error {rec['boundary_error']:.2g}" if rec["boundary_error"] is not None \
-        else f"{name}: empty mesh"
+    rec["title"] = f"boundary error {rec['boundary_error']:.2g}" if rec["boundary_error"] is not None \
+        else "empty mesh"
     info = {"curve": str(cfg.curve), "latent": k, "latent_name": list(module.hparams.shape_names)[k],
             "ckpt_path": str(cfg.ckpt_path)}
     report = write_outputs(out_dir, [rec], info, 1, f"{name}.png", f"{name}.json")

@@ -9,7 +9,7 @@
   time, see ``geometry.correspondence``), with the latent code of ``hold`` held fixed;
 - ``grid``: rows interpolate the latent code, columns the boundary (``steps`` × ``steps``), as Fig. 6.
 
-Writes, into ``out_dir`` (default: ``<run>/interpolation/<mode>_<a>_<b>`` next to the checkpoint's run):
+Writes, into ``out_dir`` (default: ``<run>/checkpoints/last/interpolation_<mode>_<a>_<b>``, beside the checkpoint):
 one mesh ``.ply`` and its boundary ``.obj`` per interpolant, ``interpolation.png`` (the grid of pictures)
 and ``interpolation.json`` with each interpolant's ``boundary_error`` (Hausdorff distance between the
 mesh's border and the prescribed Γ: the boundary is the handle, so this is what to watch).
@@ -19,39 +19,33 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import hydra
 import numpy as np
 import torch
-from hydra.core.config_store import ConfigStore
-from omegaconf import DictConfig
+from omegaconf import MISSING, DictConfig
 
-from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.apps import output_dir, positive_int, register_app, run_app
+from deepcurrents.errors import ConfigError
 from deepcurrents.eval.mesh_grid import plot_mesh_grid
 from deepcurrents.eval.metrics import boundary_error
 from deepcurrents.geometry.correspondence import interpolate_loops
 from deepcurrents.geometry.curves import write_curve_file
-from deepcurrents.models.autodecoder import AutodecoderModule, load_autodecoder
+from deepcurrents.models.autodecoder import AutodecoderModule
+from deepcurrents.models.loading import load_module, resolve_device
 
 log = logging.getLogger("deepcurrents")
 
 MODES = ("latent", "boundary", "grid")
 
-# apps write where they are told (or next to the checkpoint), never into a Hydra run directory
-APP_HYDRA = {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False}}
-APP_DEFAULTS = ["_self_", {"override hydra/job_logging": "stdout"}]
-
-
 @dataclass
 class InterpolateConfig:
     """``python -m deepcurrents.interpolate`` settings."""
 
-    ckpt_path: str | None = None  # required: a family checkpoint (…/checkpoints/last.ckpt)
+    ckpt_path: str = MISSING  # a family checkpoint (…/checkpoints/last.ckpt)
     mode: str = "latent"  # latent | boundary | grid
     a: int = 0  # training shape indices (rows of the latent table; see per_shape.csv of the run)
     b: int = 1
@@ -60,37 +54,24 @@ class InterpolateConfig:
     out_dir: str | None = None
     resolution: int | None = None  # marching-cubes resolution (default: the run's evaluation.mesh)
     device: str = "auto"  # auto | cpu | cuda
-    defaults: list[Any] = field(default_factory=lambda: list(APP_DEFAULTS))
-    hydra: Any = field(default_factory=lambda: dict(APP_HYDRA))
 
 
-ConfigStore.instance().store(name="interpolate", node=InterpolateConfig)
+register_app("interpolate", InterpolateConfig, __doc__)
 
 
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"device='{name}' was asked for but no CUDA GPU is available.")
-    return torch.device(name)
-
-
-def default_out_dir(ckpt_path: str, name: str) -> Path:
-    """``<run>/<name>`` for ``<run>/checkpoints/x.ckpt``, else ``<checkpoint folder>/<name>``."""
-    ckpt = Path(ckpt_path).resolve()
-    run = ckpt.parent.parent if ckpt.parent.name == "checkpoints" else ckpt.parent
-    return run / name
+def app_out_dir(cfg: DictConfig, name: str) -> Path:
+    """``cfg.out_dir``, else ``<folder named after the checkpoint>/<name>`` beside it (as the other apps)."""
+    path = Path(cfg.out_dir) if cfg.out_dir else output_dir(cfg.ckpt_path, None) / name
+    path.mkdir(parents=True, exist_ok=True)
+    return path
 
 
 def load_for_app(cfg: DictConfig) -> AutodecoderModule:
     """The family model of ``cfg.ckpt_path`` on ``cfg.device``, with ``cfg.resolution`` applied."""
-    if not cfg.get("ckpt_path"):
-        raise ConfigError("ckpt_path=… is required: the checkpoint of a family run (…/checkpoints/last.ckpt).")
-    module = load_autodecoder(cfg.ckpt_path, pick_device(str(cfg.device)))
+    module = load_module(cfg.ckpt_path, map_location=resolve_device(str(cfg.device)), expected=AutodecoderModule)
     if cfg.get("resolution") is not None:
-        if int(cfg.resolution) < 8:
-            raise ConfigError(f"resolution={cfg.resolution} must be an integer ≥ 8.")
-        module.evaluation["mesh"] = {**dict(module.evaluation.get("mesh", {})), "resolution": int(cfg.resolution)}
+        resolution = positive_int("resolution", cfg.resolution, 8)
+        module.evaluation["mesh"] = {**dict(module.evaluation.get("mesh", {})), "resolution": resolution}
     return module
 
 
@@ -124,7 +105,7 @@ def write_outputs(out_dir: Path, records: list[dict[str, Any]], info: dict[str, 
     """The picture grid and the JSON report (records without their in-memory meshes)."""
     titles = [r["title"] for r in records]
     plot_mesh_grid([r["_mesh"] for r in records], [r["_loops"] for r in records], out_dir / figure,
-                   titles=titles, ncols=ncols)
+                   titles=titles, ncols=ncols, size=5.0 if len(records) == 1 else 3.0)
     report = {**info, **summarise(records),
               "items": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records]}
     (out_dir / json_name).write_text(json.dumps(report, indent=2))
@@ -136,16 +117,14 @@ def interpolate(cfg: DictConfig) -> dict[str, Any]:
     mode = str(cfg.mode)
     if mode not in MODES:
         raise ConfigError(f"mode='{mode}' must be one of {', '.join(MODES)}.")
-    if isinstance(cfg.steps, bool) or not isinstance(cfg.steps, int) or cfg.steps < 2:
-        raise ConfigError(f"steps={cfg.steps!r} must be an integer ≥ 2 (t runs from 0 to 1 inclusive).")
+    positive_int("steps", cfg.steps, 2)  # t runs from 0 to 1 inclusive
     if str(cfg.hold) not in ("a", "b"):
         raise ConfigError(f"hold='{cfg.hold}' must be a or b.")
     module = load_for_app(cfg)
     a = module.check_shape_index(cfg.a, "a")
     b = module.check_shape_index(cfg.b, "b")
     held = a if str(cfg.hold) == "a" else b
-    out_dir = Path(cfg.out_dir) if cfg.out_dir else default_out_dir(cfg.ckpt_path, f"interpolation/{mode}_{a}_{b}")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = app_out_dir(cfg, f"interpolation_{mode}_{a}_{b}")
     ts = np.linspace(0.0, 1.0, int(cfg.steps))
     za, zb = module.latent(a), module.latent(b)
     loops_a, loops_b = module.shape_loops(a), module.shape_loops(b)
@@ -176,15 +155,6 @@ def interpolate(cfg: DictConfig) -> dict[str, Any]:
     report = write_outputs(out_dir, records, info, len(ts), "interpolation.png", "interpolation.json")
     print(f"wrote {len(records)} meshes, interpolation.png and interpolation.json to {out_dir}")
     return report
-
-
-def run_app(fn: Callable[[DictConfig], Any], cfg: DictConfig) -> Any:
-    """Runs an app, turning user errors into one sentence on stderr and exit status 2 (no traceback)."""
-    try:
-        return fn(cfg)
-    except UserInputError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="interpolate")

@@ -291,28 +291,3 @@ class AutodecoderModule(DeepCurrentsModule):
         (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         return metrics
 
-
-def load_autodecoder(ckpt_path: str | Path, map_location: str | torch.device = "cpu") -> AutodecoderModule:
-    """An AutodecoderModule from a checkpoint written by ``train.py`` (eval mode). Raises UserInputError
-    with one sentence for a missing, unreadable or foreign checkpoint."""
-    from deepcurrents.models.base import CHECKPOINT_KEY
-
-    path = Path(str(ckpt_path))
-    if not path.is_file():
-        raise UserInputError(f"ckpt_path='{path}' does not exist or is not a file.")
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as err:  # torch/pickle raise many kinds for truncated or foreign files
-        raise UserInputError(f"ckpt_path='{path}' could not be read as a checkpoint ({type(err).__name__}).") from err
-    if not isinstance(ckpt, dict) or "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
-        raise UserInputError(f"ckpt_path='{path}' is not a Lightning checkpoint of a DeepCurrents model.")
-    kind = (ckpt.get(CHECKPOINT_KEY) or {}).get("module", "")
-    if kind != f"{AutodecoderModule.__module__}.{AutodecoderModule.__qualname__}":
-        raise UserInputError(
-            f"ckpt_path='{path}' holds a {kind.rsplit('.', 1)[-1] or 'non-DeepCurrents'} model, not a family "
-            "(autodecoder) model; train one with experiment=latent_hands or latent_heads."
-        )
-    module = AutodecoderModule(**ckpt["hyper_parameters"])
-    module.on_load_checkpoint(ckpt)
-    module.load_state_dict(ckpt["state_dict"])
-    return module.to(map_location).eval()
