@@ -1,0 +1,350 @@
+"""The grid baseline of paper Fig. 4 (Wang & Chern 2021) as a LightningModule: φ on N³ voxels, one ADMM
+iteration per training step (numerics in ``deepcurrents.geometry.grid_currents``), stopped on its
+residuals. It goes through the same ``train.py``, logging, checkpoints and meshing as the network.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from deepcurrents.errors import ConfigError, NonFiniteLossError
+from deepcurrents.eval.meshing import extract_surface
+from deepcurrents.eval.metrics import boundary_error, mass_estimate, mass_to_area
+from deepcurrents.eval.plots import plot_mesh
+from deepcurrents.geometry import biot_savart
+from deepcurrents.geometry.grid_currents import (
+    ADMMReport,
+    ADMMState,
+    GridProblem,
+    admm_step,
+    cap_singularity,
+    grid_gradient,
+    grid_spacing,
+    grid_vertices,
+)
+from deepcurrents.models.base import CHECKPOINT_KEY
+from deepcurrents.nn import NeuralCurrent
+
+log = logging.getLogger(__name__)
+
+DTYPES = {"float32": torch.float32, "float64": torch.float64}
+
+
+class GridCurrent(nn.Module):
+    """A grid function φ on the N³ cells of [-1, 1]³ as a current, for the network's meshing and metrics.
+
+    The grid's current is ω_c = Gφ + alpha_scale·α_Γ at the cell corners (what ADMM minimises). Between
+    samples both are trilinear: f(x) interpolates φ between cell centres (constant past the outer ones,
+    like the solver's Neumann reflection) and ω(x) interpolates ω_c between corners. Same normalisation
+    as ``NeuralCurrent`` (ω = ∇f + alpha_scale·α), so the same level, |ω| ≥ δ cut and Newton steps apply.
+    (∇f + alpha_scale·α(x) off the corners would mix the grid's gradient with the exact singular α,
+    which the grid cannot cancel between its samples: spurious |ω| next to Γ.)
+
+    φ is the only parameter (frozen for autograd: ADMM updates it in place). ``corner_alpha`` (scaled)
+    is set by its owner with :meth:`set_corner_alpha`.
+    """
+
+    def __init__(self, resolution: int, loops: list[torch.Tensor], alpha_scale: float = 1e-3,
+                 dtype: torch.dtype = torch.float64):
+        super().__init__()
+        self.dim = 3
+        self.alpha_scale = alpha_scale
+        self.phi = nn.Parameter(torch.zeros(resolution, resolution, resolution, dtype=dtype), requires_grad=False)
+        self.register_buffer("vertices", torch.cat([torch.as_tensor(lp) for lp in loops]).double())
+        self.register_buffer("loop_sizes", torch.tensor([len(lp) for lp in loops], dtype=torch.long))
+        self.register_buffer("corner_alpha", None, persistent=False)
+        self._cache: tuple | None = None
+
+    @property
+    def resolution(self) -> int:
+        return self.phi.shape[0]
+
+    @property
+    def loops(self) -> list[torch.Tensor]:
+        """The boundary loops, list of (M_i, 3)."""
+        return list(torch.split(self.vertices, self.loop_sizes.tolist()))
+
+    def set_corner_alpha(self, alpha: torch.Tensor) -> None:
+        """alpha_scale·α_Γ sampled at the corners, (3, N+1, N+1, N+1)."""
+        self.corner_alpha = alpha.to(self.phi)
+        self._cache = None
+
+    def corner_current(self) -> torch.Tensor:
+        """ω_c = Gφ + alpha_scale·α at the corners: (3, N+1, N+1, N+1) (cached until φ changes)."""
+        if self.corner_alpha is None:
+            raise RuntimeError("GridCurrent.corner_alpha is not set (GridModule.problem() sets it).")
+        key = (self.phi._version, self.phi.data_ptr(), self.corner_alpha.data_ptr())
+        if self._cache is None or self._cache[0] != key:
+            omega = grid_gradient(self.phi.detach(), grid_spacing(self.resolution)) + self.corner_alpha
+            self._cache = (key, omega)
+        return self._cache[1]
+
+    def f(self, x: torch.Tensor) -> torch.Tensor:
+        """Trilinear interpolation of φ. (P, 3) → (P,), differentiable in x."""
+        # grid_sample reads its volume as (D, H, W) = (z, y, x) and its grid's last axis as (x, y, z);
+        # align_corners=False puts sample i at −1 + (i + ½)h, the cell centres.
+        return _trilinear(self.phi[None], x, align_corners=False)[:, 0]
+
+    def alpha(self, x: torch.Tensor) -> torch.Tensor:
+        """alpha_scale · α_Γ(x), closed form. (P, 3) → (P, 3)."""
+        return self.alpha_scale * biot_savart(x, self.loops)
+
+    def forward(self, x: torch.Tensor, create_graph: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """(f, ω) at points x: (P, 3) → ((P,), (P, 3)). ω interpolates the corners (align_corners=True)."""
+        with torch.no_grad():
+            return self.f(x), _trilinear(self.corner_current(), x, align_corners=True)
+
+    @torch.no_grad()
+    def evaluate(self, x: torch.Tensor, chunk_size: int = 1 << 15, omega: bool = True):
+        """f (and ω) at many points in chunks. (P, 3) → (P,) [, (P, 3)]."""
+        fs, ws = [], []
+        for chunk in torch.split(x, chunk_size):
+            if omega:
+                f, w = self(chunk)
+                ws.append(w)
+            else:
+                f = self.f(chunk)
+            fs.append(f)
+        return (torch.cat(fs), torch.cat(ws)) if omega else torch.cat(fs)
+
+
+def _trilinear(volume: torch.Tensor, x: torch.Tensor, align_corners: bool) -> torch.Tensor:
+    """Trilinear interpolation of a (C, n, n, n) volume (array axis i = coordinate i) over [-1, 1]³ at
+    points (P, 3) → (P, C), in x's dtype; clamped past the outermost samples."""
+    vol = volume.permute(0, 3, 2, 1)[None]  # grid_sample wants (1, C, z, y, x)
+    grid = x.to(volume.dtype).reshape(1, 1, 1, -1, 3)
+    out = F.grid_sample(vol, grid, mode="bilinear", padding_mode="border", align_corners=align_corners)
+    return out.reshape(volume.shape[0], -1).T.to(x.dtype)
+
+
+class ADMM(torch.optim.Optimizer):
+    """The grid solver as a torch optimiser: each ``step()`` is one ADMM iteration on φ (the only param).
+
+    Z, u, ρ and the iteration count are optimiser state, so Lightning checkpoints and resumes them.
+    ``problem`` returns the GridProblem (α at the corners) on φ's device.
+    """
+
+    def __init__(self, phi: nn.Parameter, problem: Callable[[], GridProblem], rho: float,
+                 relaxation: float = 1.6, balance: float = 10.0):
+        super().__init__([phi], {"rho": rho, "relaxation": relaxation, "balance": balance})
+        self.problem = problem
+        self.last: ADMMReport | None = None
+
+    @torch.no_grad()
+    def step(self, closure=None):
+        if closure is not None:
+            closure()  # Lightning's hooks around a manual step
+        group = self.param_groups[0]
+        phi = group["params"][0]
+        problem = self.problem()
+        state = self.state[phi]
+        if not state:
+            state.update(z=problem.current(phi.data), u=torch.zeros_like(problem.alpha),
+                         rho=float(group["rho"]), iteration=0)
+        admm = ADMMState(phi.data, state["z"], state["u"], state["rho"], state["iteration"])
+        self.last = admm_step(problem, admm, relaxation=group["relaxation"], balance=group["balance"])
+        phi.data.copy_(admm.phi)
+        state.update(z=admm.z, u=admm.u, rho=admm.rho, iteration=admm.iteration)
+        return None
+
+
+def matched_resolution(net: dict[str, Any], loops: list[torch.Tensor]) -> tuple[int, int]:
+    """The grid size N with N³ closest to the parameter count of the network ``net`` describes
+    (trainable weights + frozen Fourier frequencies, as the paper counts 725,249 → 90³). → (N, count)."""
+    network = NeuralCurrent(dim=3, loops=loops, **net)
+    count = sum(p.numel() for p in network.parameters()) + network.encoding.frequencies.numel()
+    return max(4, round(count ** (1.0 / 3.0))), count
+
+
+class GridModule(L.LightningModule):
+    """Minimal currents on a voxel grid (Wang & Chern 2021; paper Fig. 4), solved by ADMM.
+
+    Args:
+        boundary: ``boundary_spec`` of Γ ({"loops": [...]}); 3D only.
+        grid: {"resolution": N or null, "dtype": "float64"|"float32"}. N³ cells over [-1, 1]³; null sizes
+            the grid like the network in ``net`` (the paper's matched parameter count: 90³).
+        admm: {"rho", "relaxation", "balance", "tol", "min_iterations"}: initial penalty ρ = rho·h/alpha_scale
+            (the shrink threshold 1/ρ then sits at the same place relative to |ω| at every N), over-relaxation,
+            residual balancing (0: off), stop when both relative residuals are below tol.
+        net: the network this grid is compared with (model/current.yaml's block): ``alpha_scale`` is the
+            shared normalisation of ω; its sizes give the matched resolution.
+        optim: the network's optimiser settings, unused (ADMM has no learning rate); accepted so that
+            presets that size the network (preset=cpu) compose with this model.
+        evaluation: {"mass_samples", "seed", "mesh": {...extract_surface kwargs}}.
+    """
+
+    def __init__(self, boundary: dict, grid: dict, admm: dict, net: dict, optim: dict | None = None,
+                 evaluation: dict | None = None):
+        super().__init__()
+        self.save_hyperparameters()
+        self.automatic_optimization = False
+        self.evaluation = dict(evaluation or {})
+        if "loops" not in boundary:
+            raise ConfigError("model=grid needs a 3D boundary (closed loops); 2D point boundaries are not supported.")
+        loops = [torch.tensor(lp, dtype=torch.float64) for lp in boundary["loops"]]
+        alpha_scale = float(net.get("alpha_scale", 1e-3))
+        if not alpha_scale > 0:
+            raise ConfigError(f"model.net.alpha_scale={alpha_scale} must be positive.")
+        dtype = str(grid.get("dtype", "float64"))
+        if dtype not in DTYPES:
+            raise ConfigError(f"model.grid.dtype={dtype!r} must be one of {sorted(DTYPES)}.")
+        resolution = grid.get("resolution")
+        self.matched_parameters = None
+        if resolution is None:
+            resolution, self.matched_parameters = matched_resolution(net, loops)
+        if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 4:
+            raise ConfigError(f"model.grid.resolution={resolution!r} must be an integer ≥ 4 (or null).")
+        self.admm_settings = {"rho": float(admm.get("rho", 0.5)), "relaxation": float(admm.get("relaxation", 1.6)),
+                              "balance": float(admm.get("balance", 10.0)), "tol": float(admm.get("tol", 1e-3)),
+                              "min_iterations": int(admm.get("min_iterations", 10))}
+        s = self.admm_settings
+        if not s["rho"] > 0:
+            raise ConfigError(f"model.admm.rho={s['rho']} must be positive.")
+        if not 1.0 <= s["relaxation"] < 2.0:
+            raise ConfigError(f"model.admm.relaxation={s['relaxation']} must be in [1, 2).")
+        if not s["tol"] > 0 or s["balance"] < 0:
+            raise ConfigError("model.admm.tol must be positive and model.admm.balance non-negative.")
+        self.current = GridCurrent(resolution, loops, alpha_scale, DTYPES[dtype])
+        self._problem: GridProblem | None = None
+        self.setup_seconds = 0.0
+        self.train_seconds = 0.0
+        self._train_start: float | None = None
+        self.converged = False
+        self.run_config: dict | None = None
+
+    @property
+    def dim(self) -> int:
+        return 3
+
+    @property
+    def resolution(self) -> int:
+        return self.current.resolution
+
+    def problem(self) -> GridProblem:
+        """α_Γ at the corners (scaled, |α| capped next to Γ) on φ's device, computed once."""
+        phi = self.current.phi
+        if self._problem is None or self._problem.alpha.device != phi.device:
+            start = time.perf_counter()
+            n, h = self.resolution, grid_spacing(self.resolution)
+            corners = grid_vertices(n, phi.device, phi.dtype).reshape(-1, 3)
+            alpha = biot_savart(corners, [lp.to(phi) for lp in self.current.loops])
+            alpha = alpha.T.reshape(3, n + 1, n + 1, n + 1)
+            self.current.set_corner_alpha(self.current.alpha_scale * cap_singularity(alpha, h))
+            self._problem = GridProblem.from_alpha(self.current.corner_alpha)
+            self.setup_seconds = time.perf_counter() - start
+        return self._problem
+
+    def configure_optimizers(self):
+        h = grid_spacing(self.resolution)
+        s = self.admm_settings
+        return ADMM(self.current.phi, self.problem, rho=s["rho"] * h / self.current.alpha_scale,
+                    relaxation=s["relaxation"], balance=s["balance"])
+
+    def training_step(self, batch: Any, batch_idx: int) -> None:
+        opt = self.optimizers()
+        opt.step()
+        report: ADMMReport = opt.optimizer.last
+        if not math.isfinite(report.mass):
+            raise NonFiniteLossError(
+                f"The grid solver's mass became {report.mass} at iteration {self.global_step}; it stopped. "
+                "The last good checkpoint is kept (try a smaller model.admm.rho)."
+            )
+        s = self.admm_settings
+        if self.global_step >= s["min_iterations"] and max(report.primal, report.dual) < s["tol"]:
+            self.converged = True
+            self.trainer.should_stop = True
+        # only on the steps the loggers write: each self.log costs more than a small ADMM iteration
+        if self.global_step % max(1, self.trainer.log_every_n_steps) == 0 or self.converged:
+            area = report.mass / (4.0 * math.pi * self.current.alpha_scale)
+            self.log_dict({"train/loss": report.mass / 8.0, "train/mass_area": area,
+                           "train/primal_residual": report.primal, "train/dual_residual": report.dual,
+                           "train/rho": report.rho}, prog_bar=True)
+
+    def on_train_start(self) -> None:
+        self.problem()  # α before the clock starts: its time is reported as setup_seconds
+        self._train_start = time.perf_counter()
+
+    def on_train_end(self) -> None:
+        if self._train_start is not None:
+            self.train_seconds += time.perf_counter() - self._train_start
+            self._train_start = None
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint[CHECKPOINT_KEY] = {
+            "module": f"{type(self).__module__}.{type(self).__qualname__}",
+            "config": self.run_config,
+        }
+        elapsed = time.perf_counter() - self._train_start if self._train_start else 0.0
+        checkpoint["train_seconds"] = self.train_seconds + elapsed
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
+
+    @torch.no_grad()
+    def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
+        """metrics.json, mesh.ply, mesh.png and field.npz (φ and |ω| on the grid) in ``out_dir``. → metrics."""
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        problem = self.problem()
+        phi = self.current.phi.detach()
+        omega = problem.current(phi)
+        scale = 1.0 / (4.0 * math.pi * self.current.alpha_scale)  # mass → area (the jump of Ω is 4π)
+        mass = problem.mass(omega)
+        # the multiplier Λ = ρu certifies how far the iteration stopped from the discrete optimum
+        opt_state = self._optimizer_state()
+        dual = problem.dual_bound(opt_state["rho"] * opt_state["u"]) if opt_state else None
+        samples = int(self.evaluation.get("mass_samples", 1 << 20))
+        mc, mc_err = mass_estimate(self.current, samples, seed=int(self.evaluation.get("seed", 12345)))
+        metrics: dict[str, Any] = {
+            "loss": mass / 8.0,
+            "mass_area": mass * scale,
+            "mass_area_lower": dual * scale if dual is not None else None,
+            "mass_area_mc": mass_to_area(mc, 3, self.current.alpha_scale),
+            "mass_area_mc_stderr": mass_to_area(mc_err, 3, self.current.alpha_scale),
+            "resolution": self.resolution,
+            "parameters": int(phi.numel()),
+            "iterations": int(opt_state["iteration"]) if opt_state else 0,
+            "steps": int(self.global_step),
+            "converged": bool(self.converged),
+            "train_seconds": round(self.train_seconds, 3),
+            "setup_seconds": round(self.setup_seconds, 3),
+        }
+        if self.matched_parameters is not None:
+            metrics["matched_network_parameters"] = int(self.matched_parameters)
+        last = self.trainer.optimizers[0].last if opt_state else None
+        if last is not None:
+            metrics["primal_residual"], metrics["dual_residual"] = last.primal, last.dual
+        result = extract_surface(self.current, **self.evaluation.get("mesh", {}))
+        mesh = result.mesh
+        loops = [lp.cpu().double().numpy() for lp in self.current.loops]
+        metrics["mesh_area"] = float(mesh.area)
+        metrics["mesh_faces"] = int(len(mesh.faces))
+        metrics["boundary_error"] = boundary_error(mesh, loops) if len(mesh.faces) else None
+        metrics["mesh_level"] = result.level
+        metrics["boundary_loops_closed"] = result.zipped_loops
+        mesh.export(out_dir / "mesh.ply")
+        name = self.hparams.boundary.get("name", "")
+        plot_mesh(mesh, loops, out_dir / "mesh.png", title=f"{name} grid {self.resolution}³: area {mesh.area:.4f}")
+        np.savez(out_dir / "field.npz", phi=phi.cpu().numpy(), omega_norm=omega.norm(dim=0).float().cpu().numpy(),
+                 resolution=self.resolution, alpha_scale=self.current.alpha_scale,
+                 cell_centers_axis=(-1.0 + grid_spacing(self.resolution) * (np.arange(self.resolution) + 0.5)))
+        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        return metrics
+
+    def _optimizer_state(self) -> dict | None:
+        if self._trainer is None or not self.trainer.optimizers:
+            return None
+        state = self.trainer.optimizers[0].state.get(self.current.phi)
+        return state or None
