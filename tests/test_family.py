@@ -269,6 +269,19 @@ def test_boundary_interpolation_is_vertexwise_and_resamples_unequal_loops():
     assert interpolate_loops([square], [a], 0.5)[0].shape == (8, 3)
 
 
+def test_paper_and_cpu_settings_of_the_family_experiments():
+    for name in ("latent_hands", "latent_heads"):
+        cfg = compose_cfg([f"experiment={name}"])
+        assert cfg.trainer.max_steps == 300_000 and cfg.model.optim.lr == 4e-4
+        assert cfg.model.optim.step_size == 60_000 and cfg.model.optim.gamma == 0.5
+        assert cfg.data.meshes_per_batch == 8 and cfg.data.num_samples == 4000 and cfg.data.augment
+        assert cfg.model.latent_dim == 256 and cfg.model.boundary_dim == 256 and cfg.model.latent_std == 0.1
+        assert cfg.model.net.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.surface_weight == 1
+        cpu = compose_cfg([f"experiment={name}", "preset=cpu", "trainer=ddp_cpu"])
+        assert cpu.data.max_meshes == 4 and cpu.trainer.max_steps == 1500 and cpu.model.net.width == 128
+        assert cpu.trainer.strategy == "ddp" and cpu.trainer.devices == 2
+
+
 # --------------------------------------------------------------------------------------------- bad input
 def test_meshes_with_different_loop_counts_are_one_sentence(tmp_path):
     disc_mesh(SHAPES["000_cap"]).export(tmp_path / "a.ply")
