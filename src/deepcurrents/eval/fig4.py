@@ -62,7 +62,8 @@ def load_member(result: dict[str, Any]) -> dict[str, Any]:
         "mass_area": metrics.get("mass_area"),
         "mesh_area": metrics.get("mesh_area"),
         "boundary_error": metrics.get("boundary_error"),
-        "seconds": metrics.get("train_seconds"),
+        # the grid's α sampling is part of its cost (the network pays for α at every step)
+        "seconds": metrics.get("seconds", metrics.get("train_seconds")),
     }
     return {"method": method, "curve": curve, "mesh": mesh, "loops": loops, "row": row,
             "resolution": metrics.get("resolution")}
