@@ -64,3 +64,20 @@ def test_zip_refuses_a_border_that_does_not_wind_once():
     v, f = clip_by_field(verts, faces, 0.2 - np.linalg.norm(verts[:, :2] - [0.5, 0.0], axis=1))
     (border,) = border_loops(f)  # a small disk off-centre: it does not go around the curve
     assert zip_to_loop(v, border, circle(0.3, n=100)) is None
+
+
+def test_border_loops_split_where_two_loops_touch_at_a_vertex():
+    """A bowtie (two triangles sharing only vertex 0): two border edges leave vertex 0, and both loops are
+    found, each edge once; the border segments of the metrics are every border edge."""
+    from deepcurrents.eval.metrics import mesh_border_segments
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0]], dtype=float)
+    f = np.array([[0, 1, 2], [0, 3, 4]])
+    loops = border_loops(f)
+    assert sorted(sorted(lp.tolist()) for lp in loops) == [[0, 1, 2], [0, 3, 4]]
+    for lp in loops:  # each follows its face's orientation
+        face = f[0] if 1 in lp else f[1]
+        assert any(np.array_equal(np.roll(lp, k), face) for k in range(3))
+    starts, ends = mesh_border_segments(trimesh.Trimesh(v, f, process=False))
+    assert len(starts) == 6
+    assert boundary_error(trimesh.Trimesh(v, f, process=False), [v[[0, 1, 2]], v[[0, 3, 4]]]) < 1e-9

@@ -114,23 +114,42 @@ def clip_by_field(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray):
     return np.concatenate([vertices, cut_pts]), out
 
 
-def border_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Border loops of a triangle mesh as vertex index arrays, each following its faces' orientation."""
+def border_edges(faces: np.ndarray) -> np.ndarray:
+    """The directed edges that belong to one face only, (E, 2), each following its face's orientation."""
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     key = np.sort(directed, 1)
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    border = directed[counts[inv.reshape(-1)] == 1]
-    nxt = dict(zip(border[:, 0].tolist(), border[:, 1].tolist()))
-    loops, seen = [], set()
-    for start in nxt:
-        if start in seen:
+    return directed[counts[inv.reshape(-1)] == 1]
+
+
+def border_loops(faces: np.ndarray) -> list[np.ndarray]:
+    """Border loops of a triangle mesh as vertex index arrays, each following its faces' orientation.
+
+    Walks edges, not vertices: where two loops touch at a vertex (two border edges leave it), each edge is
+    still used once, and the walk splits there into simple loops. Border edges that close no loop
+    (inconsistently oriented faces) are left out.
+    """
+    edges = border_edges(faces)
+    outgoing: dict[int, list[int]] = {}
+    for e, a in enumerate(edges[:, 0].tolist()):
+        outgoing.setdefault(a, []).append(e)
+    heads = edges[:, 1].tolist()
+    used = np.zeros(len(edges), dtype=bool)
+    loops = []
+    for first in range(len(edges)):
+        if used[first]:
             continue
-        loop, v = [], start
-        while v not in seen and v in nxt:
-            seen.add(v)
-            loop.append(v)
-            v = nxt[v]
-        if len(loop) >= 3 and v == start:
+        start, loop, e = int(edges[first, 0]), [], first
+        while True:
+            used[e] = True
+            loop.append(int(edges[e, 0]))
+            v = heads[e]
+            if v == start:
+                break
+            e = next((k for k in outgoing.get(v, ()) if not used[k]), None)
+            if e is None:
+                break
+        if v == start and len(loop) >= 3:
             loops.append(np.asarray(loop))
     return loops
 

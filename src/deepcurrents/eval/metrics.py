@@ -9,7 +9,7 @@ import numpy as np
 import torch
 import trimesh
 
-from deepcurrents.eval.meshing import border_loops
+from deepcurrents.eval.meshing import border_edges
 from deepcurrents.geometry.polyline import closed_loop_segments, polyline_hausdorff
 
 
@@ -51,14 +51,10 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
 
 
 def mesh_border_segments(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
-    """The mesh's border edges as segments (starts (E, 3), ends (E, 3))."""
-    loops = border_loops(np.asarray(mesh.faces))
-    if not loops:
-        return np.zeros((0, 3)), np.zeros((0, 3))
+    """The mesh's border edges as segments (starts (E, 3), ends (E, 3)), whether or not they close loops."""
+    edges = border_edges(np.asarray(mesh.faces))
     v = np.asarray(mesh.vertices)
-    idx = np.concatenate(loops)
-    nxt = np.concatenate([np.roll(lp, -1) for lp in loops])
-    return v[idx], v[nxt]
+    return v[edges[:, 0]], v[edges[:, 1]]
 
 
 def boundary_error(mesh: trimesh.Trimesh, loops: list[np.ndarray], spacing: float = 1e-3) -> float | None:
