@@ -27,7 +27,7 @@ def quadrature_biot_savart(points, loop, per_segment=400):
     s, w = (nodes + 1) / 2, weights / 2
     a, b = loop, np.roll(loop, -1, 0)
     out = np.zeros_like(points)
-    for p0, p1 in zip(a, b):
+    for p0, p1 in zip(a, b, strict=True):
         seg = p1 - p0
         q = p0 + s[:, None] * seg  # (K, 3)
         r = points[:, None, :] - q[None]  # from the curve to x

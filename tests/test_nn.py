@@ -135,5 +135,5 @@ def test_closed_form_fourier_jacobian_gives_autograds_weight_gradients():
     xr = x.clone().requires_grad_(True)
     (grad,) = torch.autograd.grad(model.f(xr).sum(), xr, create_graph=True)
     ref = torch.autograd.grad(current_loss(grad + model.alpha(x)), list(model.mlp.parameters())[:-1])
-    for a, b in zip(fast, ref):
+    for a, b in zip(fast, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)

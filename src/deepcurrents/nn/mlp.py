@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 from torch import nn
 
 from deepcurrents.errors import ConfigError
@@ -23,7 +25,7 @@ class FieldMLP(nn.Module):
             raise ConfigError(f"model.activation='{activation}' is not one of {sorted(ACTIVATIONS)}.")
         layers: list[nn.Module] = []
         dims = [in_dim] + [width] * depth
-        for a, b in zip(dims[:-1], dims[1:]):
+        for a, b in itertools.pairwise(dims):
             layers += [nn.Linear(a, b), ACTIVATIONS[activation]()]
         layers.append(nn.Linear(dims[-1], out_dim))  # out_dim 3: the closest-point baseline
         self.net = nn.Sequential(*layers)
