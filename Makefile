@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e ".[dev,sweeps,media]"
 	touch $(STAMP)
 
-# the Anny extra, and its one-time cache (~6 min and ~0.8 GB in ~/.cache/anny on a fresh machine),
+# the Anny extra, and its one-time cache (~0.8 GB in ~/.cache/anny; 1.6 min with the install on a fresh 2-core machine),
 # built once here so that `make data` and the generator's test then take seconds
 ANNY_STAMP := $(VENV)/.anny
 $(ANNY_STAMP): $(STAMP)
