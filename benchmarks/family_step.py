@@ -29,8 +29,8 @@ from deepcurrents.losses import current_loss
 from deepcurrents.models.autodecoder import AutodecoderModule
 from deepcurrents.nn.current import spatial_gradient
 
-PAPER = dict(net=dict(num_frequencies=1024, width=256, depth=4), latent=256)
-CPU = dict(net=dict(num_frequencies=256, width=128, depth=3), latent=64)
+PAPER = dict(rff=dict(num_frequencies=1024), net=dict(width=256, depth=4), latent=256)
+CPU = dict(rff=dict(num_frequencies=256), net=dict(width=128, depth=3), latent=64)
 
 
 def sync(device: torch.device) -> None:
@@ -82,8 +82,9 @@ def main() -> None:
 
     dm = FamilyDataModule(args.data, max_meshes=args.meshes, meshes_per_batch=args.meshes,
                           num_samples=args.samples, num_surface_samples=args.samples)
-    net = dict(sigma=2.0, rff=True, activation="softplus", alpha_scale=1e-3, rff_seed=0, **sizes["net"])
-    module = AutodecoderModule(net=net, optim=dict(lr=4e-4, step_size=60000, gamma=0.5),
+    net = dict(activation="softplus", alpha_scale=1e-3, **sizes["net"])
+    rff = dict(sigma=2.0, enabled=True, seed=0, **sizes["rff"])
+    module = AutodecoderModule(net=net, rff=rff, optim=dict(lr=4e-4, step_size=60000, gamma=0.5),
                                latent_dim=sizes["latent"], boundary_dim=sizes["latent"],
                                **dm.model_kwargs()).to(device)
     stream = iter(dm.train_dataloader())

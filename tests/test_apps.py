@@ -30,8 +30,8 @@ RADIUS = 0.6  # data.curve=circle: the named circle of radius 0.6 in the xy-plan
 DISK = [  # about the smallest setting whose extracted mesh is the disk (area within a few %)
     "experiment=minimal_curve", "data.curve=circle", "data.curve_vertices=48", "logger=csv", "preset=cpu",
     "trainer=cpu", "trainer.max_steps=200", "trainer.enable_progress_bar=false",
-    "trainer.enable_model_summary=false", "data.num_samples=1024", "model.net.num_frequencies=32",
-    "model.net.width=64", "model.net.depth=2", "model.net.sigma=1.0", "model.optim.lr=1e-2",
+    "trainer.enable_model_summary=false", "data.num_samples=1024", "model.rff.num_frequencies=32",
+    "model.net.width=64", "model.net.depth=2", "model.rff.sigma=1.0", "model.optim.lr=1e-2",
     "model.optim.step_size=150", "evaluation.mass_samples=8192", "evaluation.mesh.resolution=32",
     "callbacks.model_checkpoint.every_n_train_steps=100", "callbacks.media.every_n_steps=100",
     "callbacks.media.size=16", "callbacks.media.samples=6", "callbacks.media.grid=8",
@@ -222,7 +222,7 @@ def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     proc = subprocess.run(
         [sys.executable, str(ROOT / "train.py"), "-m", "hparams_search=minimal_optuna", "experiment=minimal_trefoil",
          "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=2", "trainer.enable_progress_bar=false",
-         "trainer.enable_model_summary=false", "data.num_samples=32", "model.net.num_frequencies=8",
+         "trainer.enable_model_summary=false", "data.num_samples=32", "model.rff.num_frequencies=8",
          "model.net.width=8", "model.net.depth=1", "evaluation.mass_samples=1024", "evaluation.mesh.resolution=12",
          "callbacks.media=null", "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={sweep}"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,

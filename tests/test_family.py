@@ -276,7 +276,7 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         assert cfg.model.optim.step_size == 60_000 and cfg.model.optim.gamma == 0.5
         assert cfg.data.meshes_per_batch == 8 and cfg.data.num_samples == 4000 and cfg.data.augment
         assert cfg.model.latent_dim == 256 and cfg.model.boundary_dim == 256 and cfg.model.latent_std == 0.1
-        assert cfg.model.net.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.surface_weight == 1
+        assert cfg.model.rff.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.surface_weight == 1
         cpu = compose_cfg([f"experiment={name}", "preset=cpu", "trainer=ddp_cpu"])
         assert cpu.data.max_meshes == 4 and cpu.trainer.max_steps == 1500 and cpu.model.net.width == 128
         assert cpu.trainer.strategy == "ddp" and cpu.trainer.devices == 2

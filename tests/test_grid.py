@@ -166,7 +166,7 @@ TINY = [
     "logger=none", "trainer=cpu", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
     "callbacks.media=null", "evaluation.mass_samples=4096", "evaluation.mesh.resolution=24",
 ]
-TINY_NET = ["data.num_samples=64", "model.net.num_frequencies=16", "model.net.width=16", "model.net.depth=2"]
+TINY_NET = ["data.num_samples=64", "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=2"]
 
 
 def test_minimal_grid_run_writes_its_files_and_resumes(tmp_path):
@@ -194,7 +194,7 @@ def test_minimal_grid_run_writes_its_files_and_resumes(tmp_path):
 def test_grid_is_sized_like_the_network_and_rejects_bad_input(tmp_path):
     from deepcurrents.models.grid import matched_resolution
 
-    n, count = matched_resolution(dict(num_frequencies=1024, width=256, depth=4), [torch.tensor(circle())])
+    n, count = matched_resolution(dict(width=256, depth=4), dict(num_frequencies=1024), [torch.tensor(circle())])
     assert (n, count) == (90, 725_249)  # the paper's 90³ for its 725,249 weights
     for bad, message in [(["model.grid.resolution=2"], "resolution"), (["model.admm.rho=-1"], "rho"),
                          (["experiment=minimal_grid", "data=points_2d"], "3D boundary")]:

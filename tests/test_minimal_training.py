@@ -28,7 +28,7 @@ def test_planar_circle_gives_the_disk(tmp_path):
     exact = math.pi * radius**2
     overrides = ["experiment=minimal_trefoil", "data.curve=circle", f"data.curve_scale={radius / 0.6}",
                  "preset_cpu.max_steps=700", "preset_cpu.step_size=350", "data.num_samples=1024",
-                 "model.net.num_frequencies=128", "model.net.width=64", "model.net.depth=3", "model.optim.lr=2e-3",
+                 "model.rff.num_frequencies=128", "model.net.width=64", "model.net.depth=3", "model.optim.lr=2e-3",
                  "evaluation.mesh.resolution=64"]
     metrics = train(compose_cfg(overrides + SMALL), out_dir=tmp_path)
     # mesh: within 10% of the disk, border on the circle (to the meshing tolerance)
@@ -45,7 +45,7 @@ def test_planar_circle_gives_the_disk(tmp_path):
 def test_two_points_give_the_segment(tmp_path):
     exact = 1.0  # points (±0.5, 0)
     overrides = ["experiment=minimal_2d", "trainer.max_steps=600", "model.optim.step_size=300",
-                 "data.num_samples=1024", "model.net.num_frequencies=64", "model.net.width=64",
+                 "data.num_samples=1024", "model.rff.num_frequencies=64", "model.net.width=64",
                  "model.net.depth=3", "model.optim.lr=2e-3"]
     metrics = train(compose_cfg(overrides + SMALL), out_dir=tmp_path)
     assert abs(metrics["curve_length"] - exact) < 0.10 * exact, metrics

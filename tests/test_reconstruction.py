@@ -102,7 +102,7 @@ def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):
     assert np.abs(v).max() <= 0.5 + 1e-9
     np.testing.assert_allclose(v * dm.scale + dm.offset, big.vertices[np.unique(big.faces)], atol=1e-9)
     cfg = compose_cfg(["experiment=recon_mesh", f"data.mesh={path}", *TINY, "trainer.max_steps=2",
-                       "data.num_samples=64", "data.num_surface_samples=64", "model.net.num_frequencies=16",
+                       "data.num_samples=64", "data.num_surface_samples=64", "model.rff.num_frequencies=16",
                        "model.net.width=16", "model.net.depth=1", "evaluation.mesh.resolution=24"])
     metrics = train(cfg, out_dir=tmp_path / "run")
     if metrics["mesh_faces"]:
@@ -121,7 +121,7 @@ def test_oriented_point_cloud_run(tmp_path):
     np.savetxt(tmp_path / "rim.txt", mesh_boundary_loops(cap.vertices, cap.faces)[0])
     cfg = compose_cfg(["experiment=recon_points", f"data.points={tmp_path / 'cloud.xyz'}",
                        f"data.curve={tmp_path / 'rim.txt'}", *TINY, "trainer.max_steps=2", "data.num_samples=64",
-                       "data.num_surface_samples=64", "model.net.num_frequencies=16", "model.net.width=16",
+                       "data.num_surface_samples=64", "model.rff.num_frequencies=16", "model.net.width=16",
                        "model.net.depth=1", "evaluation.mesh.resolution=24"])
     metrics = train(cfg, out_dir=tmp_path / "run")
     assert metrics["steps"] == 2 and (tmp_path / "run" / "metrics.json").is_file()
@@ -134,7 +134,7 @@ def test_closest_point_baseline_stops_at_its_wall_time(tmp_path, parts_root):
     ref.write_text(json.dumps({"train_seconds": 1.5}))
     cfg = compose_cfg(["experiment=recon_baseline", f"data.root={parts_root}", *TINY,
                        f"model.wall_time_from={ref}", "data.num_samples=64", "data.num_surface_samples=64",
-                       "model.net.num_frequencies=16", "model.net.width=16", "model.net.depth=1"])
+                       "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=1"])
     metrics = train(cfg, out_dir=tmp_path / "run")
     assert 1.5 <= metrics["train_seconds"] < 15.0
     assert metrics["steps"] > 1 and metrics["ucd"] > 0 and (tmp_path / "run" / "points.ply").is_file()
@@ -155,14 +155,14 @@ def test_curve_metric_2d_is_the_normal_projector():
 
 def test_semicircle_run_writes_its_curve(tmp_path):
     cfg = compose_cfg(["experiment=recon_2d_semicircle", *TINY, "trainer.max_steps=3", "data.num_samples=64",
-                       "model.net.num_frequencies=16", "model.net.width=16", "model.net.depth=1",
+                       "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=1",
                        "evaluation.curve.resolution=32"])
     metrics = train(cfg, out_dir=tmp_path)
     assert "curve_length" in metrics and (tmp_path / "current.png").is_file()
 
 
 SUITE_TINY = [*TINY, "data.num_samples=32", "data.num_surface_samples=32",
-              "model.net.num_frequencies=8", "model.net.width=8", "model.net.depth=1",
+              "model.rff.num_frequencies=8", "model.net.width=8", "model.net.depth=1",
               "evaluation.mesh.resolution=16", "evaluation.mass_samples=512", "evaluation.ucd_samples=1000"]
 
 

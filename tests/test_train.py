@@ -19,7 +19,7 @@ from deepcurrents.train import build, train
 
 TINY = [
     "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=6", "trainer.enable_progress_bar=false",
-    "trainer.enable_model_summary=false", "data.num_samples=64", "model.net.num_frequencies=16",
+    "trainer.enable_model_summary=false", "data.num_samples=64", "model.rff.num_frequencies=16",
     "model.net.width=16", "model.net.depth=2", "evaluation.mass_samples=4096", "evaluation.mesh.resolution=24",
     "callbacks.model_checkpoint.every_n_train_steps=3",
 ]
@@ -73,7 +73,7 @@ def test_paper_settings_of_minimal_experiments():
     cfg = compose_cfg(["experiment=minimal_trefoil"])
     assert cfg.trainer.max_steps == 100_000 and cfg.data.num_samples == 4096
     assert cfg.model.optim.lr == 5e-4 and cfg.model.optim.step_size == 10_000 and cfg.model.optim.gamma == 0.6
-    assert cfg.model.net.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.net.depth == 4
+    assert cfg.model.rff.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.net.depth == 4
 
 
 def test_train_writes_metrics_mesh_checkpoint_and_resumes(tmp_path):
@@ -120,6 +120,9 @@ def bad_obj(tmp_path):
         (["trainer.max_steps=0"], "max_steps"),
         (["evaluation.mesh.resolution=2"], "resolution"),
         (["model.net.width=0"], "width"),
+        (["model.rff.sigma=-1"], r"model\.rff\.sigma"),
+        (["model.rff.num_frequencies=0"], r"model\.rff\.num_frequencies"),
+        (["+model.rff.frequencies=8"], "unknown keys"),
         (["model.net.activation=tanhh"], "activation"),
         (["ckpt_path=/nonexistent.ckpt"], "ckpt_path"),
     ],

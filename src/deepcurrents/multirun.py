@@ -3,7 +3,7 @@ trials of an Optuna sweep), :class:`MultirunTable` writes ``table.md`` and ``tab
 directory — one row per job: the overrides that differ between jobs, then its ``metrics.json``.
 
 Registered in ``conf/hydra/default.yaml`` (``hydra.callbacks.multirun_table``), so
-``python train.py -m experiment=recon_hand model.net.sigma=1,2,4`` ends with the comparison table.
+``python train.py -m experiment=recon_hand model.rff.sigma=1,2,4`` ends with the comparison table.
 """
 
 from __future__ import annotations

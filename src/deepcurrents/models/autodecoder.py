@@ -28,7 +28,7 @@ from deepcurrents.eval.mesh_grid import plot_mesh_grid
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.metrics import boundary_error, unidirectional_chamfer
 from deepcurrents.losses import current_loss, surface_loss
-from deepcurrents.models.base import DeepCurrentsModule
+from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
 
 log = logging.getLogger(__name__)
@@ -47,7 +47,8 @@ class AutodecoderModule(DeepCurrentsModule):
 
     Args:
         num_shapes, num_loops, shape_names: the family (from ``FamilyDataModule.model_kwargs``).
-        net: decoder settings (num_frequencies, sigma, rff, width, depth, activation, alpha_scale, rff_seed).
+        net: decoder settings (width, depth, activation, alpha_scale, zero_init_output).
+        rff: the decoder's random Fourier features (num_frequencies, sigma, enabled, seed).
         optim: {"lr", "step_size", "gamma"}.
         latent_dim, boundary_dim, latent_std: sizes of z and z_Γ (paper 256, 256) and the codes' initial std.
         surface_weight, surface_margin: weight and δ of the surface hinge loss (paper: 1, 0.01).
@@ -65,6 +66,7 @@ class AutodecoderModule(DeepCurrentsModule):
         shape_names: Sequence[str],
         net: dict,
         optim: dict,
+        rff: dict | None = None,
         latent_dim: int = 256,
         boundary_dim: int = 256,
         latent_std: float = 0.1,
@@ -85,14 +87,10 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.num_shapes={num_shapes} does not match the {len(shape_names)} shape names.")
         if not surface_weight >= 0:
             raise ConfigError(f"model.surface_weight={surface_weight} must be non-negative.")
-        for key in ("num_frequencies", "width", "depth"):
-            if int(net[key]) <= 0:
-                raise ConfigError(f"model.net.{key}={net[key]} must be a positive integer.")
-        if not float(net["sigma"]) > 0 or not float(net["alpha_scale"]) > 0:
-            raise ConfigError("model.net.sigma and model.net.alpha_scale must be positive.")
         self.save_hyperparameters(ignore=["train_loops", "train_bounds"])
         self.evaluation = dict(evaluation or {})
-        self.family = FamilyCurrent(num_shapes, num_loops, latent_dim, boundary_dim, latent_std=latent_std, **net)
+        self.family = FamilyCurrent(num_shapes, num_loops, latent_dim, boundary_dim, latent_std=latent_std,
+                                    **network_kwargs(net, rff))
         # The unaugmented boundaries and boxes are data, not weights: plain CPU tensors saved in the
         # checkpoint by on_save_checkpoint (as buffers DDP would broadcast them at every step).
         lengths = torch.tensor(loop_lengths, dtype=torch.long)  # (S, B)

@@ -14,6 +14,29 @@ from deepcurrents.errors import ConfigError, NonFiniteLossError
 CHECKPOINT_KEY = "deepcurrents"
 
 
+def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``model.net`` (the MLP: width, depth, activation, alpha_scale, ...) and ``model.rff`` (the random
+    Fourier features: num_frequencies, sigma, enabled, seed) as the keyword arguments of ``NeuralCurrent``
+    and ``FamilyCurrent``, checked: impossible sizes stop the run with one sentence naming the key."""
+    rff = dict(rff or {})
+    unknown = set(rff) - {"num_frequencies", "sigma", "enabled", "seed"}
+    if unknown:
+        raise ConfigError(f"model.rff has unknown keys {sorted(unknown)}; it takes num_frequencies, sigma, "
+                          "enabled and seed.")
+    kwargs = dict(net)
+    kwargs.update(num_frequencies=rff.get("num_frequencies", 1024), sigma=rff.get("sigma", 2.0),
+                  rff=bool(rff.get("enabled", True)), rff_seed=rff.get("seed"))
+    for group, key in (("rff", "num_frequencies"), ("net", "width"), ("net", "depth")):
+        value = kwargs.get(key, 1)
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise ConfigError(f"model.{group}.{key}={value!r} must be a positive integer.")
+    if not float(kwargs["sigma"]) > 0:
+        raise ConfigError(f"model.rff.sigma={kwargs['sigma']} must be positive.")
+    if "alpha_scale" in kwargs and not float(kwargs["alpha_scale"]) > 0:
+        raise ConfigError(f"model.net.alpha_scale={kwargs['alpha_scale']} must be positive.")
+    return kwargs
+
+
 class DeepCurrentsModule(L.LightningModule):
     """Base class. Subclasses define ``training_step`` (via ``compute_losses``) and ``final_evaluation``."""
 

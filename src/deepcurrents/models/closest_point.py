@@ -18,7 +18,7 @@ import torch
 
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.metrics import sample_surface
-from deepcurrents.models.base import DeepCurrentsModule
+from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.models.reconstruction import TargetGeometry
 from deepcurrents.nn import FieldMLP, FourierFeatures
 
@@ -43,18 +43,19 @@ class ClosestPointModule(DeepCurrentsModule):
     ``wall_time_from`` when training starts), else at ``trainer.max_steps``.
     """
 
-    def __init__(self, net: dict, optim: dict, evaluation: dict | None = None, target: dict | None = None,
+    def __init__(self, net: dict, optim: dict, rff: dict | None = None, evaluation: dict | None = None,
+                 target: dict | None = None,
                  boundary: dict | None = None, near_fraction: float = 0.5, near_sigma: float = 0.05,
                  time_budget_s: float | None = None, wall_time_from: str | None = None):
         super().__init__(optim)
         self.save_hyperparameters(ignore=["target"])
         if time_budget_s is not None and not float(time_budget_s) > 0:
             raise ConfigError(f"model.time_budget_s={time_budget_s} must be positive.")
-        net = dict(net)
-        self.encoding = FourierFeatures(3, int(net["num_frequencies"]), float(net["sigma"]),
-                                        enabled=bool(net.get("rff", True)), seed=net.get("rff_seed"))
-        self.mlp = FieldMLP(self.encoding.out_dim, int(net["width"]), int(net["depth"]),
-                            net.get("activation", "softplus"), out_dim=3)
+        net = network_kwargs(net, rff)
+        self.encoding = FourierFeatures(3, net["num_frequencies"], float(net["sigma"]), enabled=net["rff"],
+                                        seed=net["rff_seed"])
+        self.mlp = FieldMLP(self.encoding.out_dim, net["width"], net["depth"], net.get("activation", "softplus"),
+                            out_dim=3)
         self.evaluation = dict(evaluation or {})
         self.time_budget_s = float(time_budget_s) if time_budget_s is not None else None
         self.wall_time_from = wall_time_from

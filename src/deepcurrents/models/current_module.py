@@ -10,12 +10,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepcurrents.errors import ConfigError
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import boundary_error, curve_length, mass_estimate, mass_to_area
 from deepcurrents.eval.plots import plot_current_2d, plot_mesh
 from deepcurrents.losses import current_loss
-from deepcurrents.models.base import DeepCurrentsModule
+from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn import NeuralCurrent
 
 
@@ -32,20 +31,18 @@ class CurrentModule(DeepCurrentsModule):
 
     Args:
         boundary: ``boundary_spec`` of Γ: {"loops": [...]} in 3D or {"poles", "signs"} in 2D.
-        net: NeuralCurrent settings (num_frequencies, sigma, rff, width, depth, activation, alpha_scale).
+        net: the MLP and ω's normalisation (width, depth, activation, alpha_scale, zero_init_output).
+        rff: the random Fourier features (num_frequencies, sigma, enabled, seed).
         optim: {"lr", "step_size", "gamma"} — Adam with lr × gamma every step_size steps.
         evaluation: {"mass_samples", "mesh": {...extract_surface kwargs}, "curve": {...}}.
     """
 
-    def __init__(self, boundary: dict, net: dict, optim: dict, evaluation: dict | None = None):
+    def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
+                 evaluation: dict | None = None):
         super().__init__(optim)
         self.save_hyperparameters()
         self.evaluation = dict(evaluation or {})
-        for key in ("num_frequencies", "width", "depth"):
-            if int(net[key]) <= 0:
-                raise ConfigError(f"model.net.{key}={net[key]} must be a positive integer.")
-        if not float(net["sigma"]) > 0 or not float(net["alpha_scale"]) > 0:
-            raise ConfigError("model.net.sigma and model.net.alpha_scale must be positive.")
+        net = network_kwargs(net, rff)
         if "loops" in boundary:
             self.current = NeuralCurrent(dim=3, loops=[torch.tensor(lp) for lp in boundary["loops"]], **net)
         else:

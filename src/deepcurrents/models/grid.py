@@ -34,7 +34,7 @@ from deepcurrents.geometry.grid_currents import (
     grid_spacing,
     grid_vertices,
 )
-from deepcurrents.models.base import CHECKPOINT_KEY
+from deepcurrents.models.base import CHECKPOINT_KEY, network_kwargs
 from deepcurrents.nn import NeuralCurrent
 
 log = logging.getLogger(__name__)
@@ -160,10 +160,10 @@ class ADMM(torch.optim.Optimizer):
         return None
 
 
-def matched_resolution(net: dict[str, Any], loops: list[torch.Tensor]) -> tuple[int, int]:
-    """The grid size N with N³ closest to the parameter count of the network ``net`` describes
+def matched_resolution(net: dict[str, Any], rff: dict[str, Any] | None, loops: list[torch.Tensor]) -> tuple[int, int]:
+    """The grid size N with N³ closest to the parameter count of the network ``net`` and ``rff`` describe
     (trainable weights + frozen Fourier frequencies, as the paper counts 725,249 → 90³). → (N, count)."""
-    network = NeuralCurrent(dim=3, loops=loops, **net)
+    network = NeuralCurrent(dim=3, loops=loops, **network_kwargs(net, rff))
     count = sum(p.numel() for p in network.parameters()) + network.encoding.frequencies.numel()
     return max(4, round(count ** (1.0 / 3.0))), count
 
@@ -178,15 +178,15 @@ class GridModule(L.LightningModule):
         admm: {"rho", "relaxation", "balance", "tol", "min_iterations"}: initial penalty ρ = rho·h/alpha_scale
             (the shrink threshold 1/ρ then sits at the same place relative to |ω| at every N), over-relaxation,
             residual balancing (0: off), stop when both relative residuals are below tol.
-        net: the network this grid is compared with (model/current.yaml's block): ``alpha_scale`` is the
-            shared normalisation of ω; its sizes give the matched resolution.
+        net, rff: the network this grid is compared with (model/current.yaml's blocks): ``alpha_scale`` is
+            the shared normalisation of ω; their sizes give the matched resolution.
         optim: the network's optimiser settings, unused (ADMM has no learning rate); accepted so that
             presets that size the network (preset=cpu) compose with this model.
         evaluation: {"mass_samples", "seed", "mesh": {...extract_surface kwargs}}.
     """
 
     def __init__(self, boundary: dict, grid: dict, admm: dict, net: dict, optim: dict | None = None,
-                 evaluation: dict | None = None):
+                 rff: dict | None = None, evaluation: dict | None = None):
         super().__init__()
         self.save_hyperparameters()
         self.automatic_optimization = False
@@ -203,7 +203,7 @@ class GridModule(L.LightningModule):
         resolution = grid.get("resolution")
         self.matched_parameters = None
         if resolution is None:
-            resolution, self.matched_parameters = matched_resolution(net, loops)
+            resolution, self.matched_parameters = matched_resolution(net, rff, loops)
         if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 4:
             raise ConfigError(f"model.grid.resolution={resolution!r} must be an integer ≥ 4 (or null).")
         self.admm_settings = {"rho": float(admm.get("rho", 0.5)), "relaxation": float(admm.get("relaxation", 1.6)),

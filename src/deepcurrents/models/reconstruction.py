@@ -94,9 +94,10 @@ class ReconstructionModule(CurrentModule):
         surface_margin: δ of the surface hinge loss (paper 0.01).
     """
 
-    def __init__(self, boundary: dict, net: dict, optim: dict, evaluation: dict | None = None,
-                 target: dict | None = None, surface_weight: float = 1.0, surface_margin: float = 0.01):
-        super().__init__(boundary, net, optim, evaluation)
+    def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
+                 evaluation: dict | None = None, target: dict | None = None, surface_weight: float = 1.0,
+                 surface_margin: float = 0.01):
+        super().__init__(boundary, net, optim, rff, evaluation)
         self.save_hyperparameters(ignore=["target"])  # the geometry lives in buffers, not in hparams
         if not surface_weight >= 0 or not surface_margin > 0:
             raise ConfigError("model.surface_weight must be ≥ 0 and model.surface_margin positive.")
