@@ -54,7 +54,7 @@ def plot_mesh(
         ax.set_ylim(c[1] - r, c[1] + r)
         ax.set_zlim(c[2] - r, c[2] + r)
     ax.view_init(elev=elev, azim=azim)
-    ax.set_box_aspect((1, 1, 1))
+    ax.set_box_aspect((1, 1, 1), zoom=1.6)  # the axes cube is hidden: let the shape fill the frame
     ax.set_axis_off()
     if title:
         ax.set_title(title)
