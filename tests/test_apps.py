@@ -134,6 +134,12 @@ def test_extract_at_two_resolutions_gives_areas_that_agree(run, tmp_path):
     assert areas[1] == pytest.approx(np.pi * RADIUS**2, rel=0.15)  # the disk (+8% after 200 tiny steps)
     with pytest.raises(ConfigError, match="resolution=4"):
         extract_checkpoint(app_cfg(ExtractConfig, ckpt_path=ckpt, resolution=4))
+    with pytest.raises(ConfigError, match=r"min_alignment=2.0 must be in \[-1, 1\]"):
+        extract_checkpoint(app_cfg(ExtractConfig, ckpt_path=ckpt, min_alignment=2.0))
+    # the meshing knobs reach extract_surface: keeping the specks never removes area
+    loose = extract_checkpoint(app_cfg(ExtractConfig, ckpt_path=ckpt, out_dir=str(tmp_path / "loose"), resolution=40,
+                                       picture=False, min_alignment=-1.0, min_component=0.0))
+    assert loose["mesh_area"] >= areas[1] - 1e-9
 
 
 def disk_mesh(z: float) -> trimesh.Trimesh:

@@ -41,6 +41,9 @@ class ExtractConfig:
     boundary_tube: float | None = None
     close_boundary: bool | None = None
     newton_steps: int | None = None
+    min_alignment: float | None = None  # keep faces with cos(ω, ∇f) ≥ this (-1: off)
+    min_component: float | None = None  # drop pieces below this fraction of the area (0: off)
+    padding: float | None = None  # the meshed box: Γ's bounding box grown by this
 
 
 register_app("extract", ExtractConfig, __doc__)
@@ -52,6 +55,10 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     fmt = str(cfg.format).lower().lstrip(".")
     if fmt not in FORMATS:
         raise ConfigError(f"format='{cfg.format}' must be one of {', '.join(FORMATS)}.")
+    for key, lo, hi in (("min_alignment", -1.0, 1.0), ("min_component", 0.0, 1.0), ("padding", 0.0, 1.0)):
+        value = cfg.get(key)
+        if value is not None and not lo <= value <= hi:
+            raise ConfigError(f"{key}={value} must be in [{lo:g}, {hi:g}].")
     device = resolve_device(cfg.device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
@@ -59,7 +66,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
         raise ConfigError(f"ckpt_path='{cfg.ckpt_path}' holds a 2D current: there is no surface to extract.")
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
                              boundary_tube=cfg.boundary_tube, close_boundary=cfg.close_boundary,
-                             newton_steps=cfg.newton_steps)
+                             newton_steps=cfg.newton_steps, min_alignment=cfg.min_alignment,
+                             min_component=cfg.min_component, padding=cfg.padding)
     result = extract_surface(current, **settings)
     mesh = result.mesh
     out = output_dir(cfg.ckpt_path, cfg.out_dir)
