@@ -109,6 +109,15 @@ def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):
         mesh = trimesh.load(tmp_path / "run" / "mesh.ply", process=False)
         lo, hi = big.bounds
         assert np.all(mesh.vertices > lo - 0.3 * 40) and np.all(mesh.vertices < hi + 0.3 * 40)
+    # the apps rebuild the module from the checkpoint alone: the target comes back with it
+    from deepcurrents.models.loading import load_module
+    from deepcurrents.models.reconstruction import TargetGeometry
+
+    module = load_module(tmp_path / "run" / "checkpoints" / "last.ckpt")
+    target = TargetGeometry.mesh(module)
+    np.testing.assert_array_equal(target.faces, dm.target["faces"])
+    np.testing.assert_allclose(TargetGeometry.to_input(module, np.asarray(target.vertices)),
+                               big.vertices[np.unique(big.faces)], atol=1e-9)
 
 
 def test_oriented_point_cloud_run(tmp_path):

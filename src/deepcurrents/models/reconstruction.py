@@ -44,6 +44,18 @@ class TargetGeometry:
         scale, offset = float(spec.get("scale", 1.0)), np.asarray(spec.get("offset", np.zeros(3)))
         module.register_buffer("target_scale", torch.tensor(scale, dtype=torch.float64))
         module.register_buffer("target_offset", torch.as_tensor(offset, dtype=torch.float64))
+        module._register_load_state_dict_pre_hook(TargetGeometry._adopt_saved_target, with_module=True)
+
+    @staticmethod
+    def _adopt_saved_target(module, state_dict, prefix, *args) -> None:
+        """A module rebuilt from a checkpoint's hyperparameters alone (the apps) has no target: take the
+        saved one's shapes and kind (faces are integers, normals are not) before the weights are copied."""
+        a, b = state_dict.get(prefix + "target_a"), state_dict.get(prefix + "target_b")
+        if a is None or b is None or module.target_kind != "none" or len(a) == 0:
+            return
+        module.target_a = torch.empty_like(a, dtype=torch.float64)
+        module.target_b = torch.empty_like(b)
+        module.target_kind = "points" if b.is_floating_point() else "mesh"
 
     @staticmethod
     def mesh(module) -> trimesh.Trimesh | None:
