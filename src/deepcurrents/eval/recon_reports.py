@@ -86,7 +86,7 @@ def table1_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> lis
     ax.set_ylabel("UCD")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out_dir / "table1.png")
+    fig.savefig(out_dir / "table1.png", bbox_inches="tight")
     plt.close(fig)
     return rows
 
@@ -104,8 +104,10 @@ def ablation_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> l
         if path.is_file():
             ax.imshow(plt.imread(path))
         ax.set_axis_off()
-        ax.set_title(f"{name}\nUCD {_fmt(row.get('ucd'))}", fontsize=9)
+        # an empty mesh has no UCD: say so (e.g. a surface that collapsed onto the minimal one inside the tube)
+        ucd = f"UCD {_fmt(row['ucd'])}" if row.get("ucd") is not None else "no surface extracted"
+        ax.set_title(f"{name}\n{ucd}", fontsize=9)
     fig.tight_layout()
-    fig.savefig(out_dir / "hand_ablation.png")
+    fig.savefig(out_dir / "hand_ablation.png", bbox_inches="tight")
     plt.close(fig)
     return rows
