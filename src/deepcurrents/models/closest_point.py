@@ -72,6 +72,10 @@ class ClosestPointModule(DeepCurrentsModule):
             self.time_budget_s = read_wall_time(self.wall_time_from)
             log.info("closest-point baseline: training for %.1f s (the wall time of %s)", self.time_budget_s,
                      self.wall_time_from)
+        if self.time_budget_s is not None and self.trainer.max_steps != -1:
+            # the budget is the stop: a step cap from a preset (preset=cpu's 1000) would hand the baseline
+            # less time than the run it is compared with
+            self.trainer.fit_loop.epoch_loop.max_steps = -1
         self._start = time.perf_counter()
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
