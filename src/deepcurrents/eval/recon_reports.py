@@ -75,7 +75,7 @@ def table1_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> lis
 
     fig, ax = plt.subplots(figsize=(6, 3.5), dpi=120)
     x = range(len(rows))
-    series = [("ucd_baseline", "baseline (ours)", -0.3), ("ucd_ours", "DeepCurrents (ours)", -0.1),
+    series = [("ucd_baseline", "baseline (this run)", -0.3), ("ucd_ours", "DeepCurrents (this run)", -0.1),
               ("paper_ucd_baseline", "baseline (paper)", 0.1),
               ("paper_ucd_ours", "DeepCurrents (paper)", 0.3)]
     for key, label, dx in series:
