@@ -88,6 +88,17 @@ def test_spherical_cap_is_reconstructed(tmp_path, cap_file):
     assert len(top) and top.max() > 0.42 and metrics["boundary_error"] is not None
     assert {"ucd", "ucd_reverse", "chamfer", "boundary_error", "mesh_area", "steps"} <= set(metrics)
     assert json.loads((tmp_path / "metrics.json").read_text())["ucd"] == metrics["ucd"]
+    # the evaluate app, from the checkpoint alone, meshes where the run did (the target's box) and gets its UCD
+    from omegaconf import OmegaConf
+
+    from deepcurrents.evaluate import EvaluateConfig, evaluate_checkpoint
+
+    cfg = OmegaConf.structured(EvaluateConfig)
+    cfg.ckpt_path, cfg.target, cfg.samples = str(tmp_path / "checkpoints" / "last.ckpt"), str(cap_file), 4000
+    cfg.out_dir, cfg.mass_samples = str(tmp_path / "eval"), 2048
+    again = evaluate_checkpoint(cfg)
+    assert again["mesh_area"] == pytest.approx(metrics["mesh_area"], rel=1e-6)
+    assert again["ucd"] == pytest.approx(metrics["ucd"], rel=1e-6)
 
 
 def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):

@@ -72,7 +72,8 @@ def run_app(main: Callable[[Any], Any], cfg: Any) -> Any:
 def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> dict[str, Any]:
     """``extract_surface`` keyword arguments: the run's ``evaluation.mesh`` settings, then ``overrides``
     (None values are ignored). Families mesh a member inside its training shape's box
-    (``module.meshing_bounds``), since their surfaces reach beyond Γ's box."""
+    (``module.meshing_bounds``) and reconstructions inside their target's (``module.target_bounds``),
+    since their surfaces reach beyond Γ's box."""
     run_config = getattr(module, "run_config", None) or {}
     evaluation = getattr(module, "evaluation", None) or run_config.get("evaluation") or {}
     settings = dict(evaluation.get("mesh") or {})
@@ -80,4 +81,7 @@ def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> di
     if settings.get("bounds") is None and callable(getattr(module, "meshing_bounds", None)):
         settings["bounds"] = module.meshing_bounds([0 if shape is None else shape])
         settings.pop("padding", None)
+    elif settings.get("bounds") is None and callable(getattr(module, "target_bounds", None)):
+        # reconstructions: the run meshed over its target's box, so must the apps
+        settings["bounds"] = module.target_bounds(settings.get("padding", 0.15))
     return settings

@@ -133,13 +133,18 @@ class ReconstructionModule(CurrentModule):
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
         return loss
 
+    def target_bounds(self, padding: float = 0.15) -> np.ndarray | None:
+        """Where a reconstruction is meshed: the target's bounding box grown by ``padding`` × its largest
+        extent (Γ's box, the minimal-surface default, is too small for a surface that bulges away from its
+        boundary). → (2, 3), or None without a target."""
+        if not len(self.target_a):
+            return None
+        return region_of_interest([self.target_a.cpu().numpy()], padding)
+
     def mesh_options(self) -> dict[str, Any]:
-        """Mesh over the target's bounding box grown by ``padding`` (default: Γ's box, too small for a
-        reconstruction that bulges away from its boundary)."""
         options = super().mesh_options()
-        if options.get("bounds") is None and len(self.target_a):
-            pts = self.target_a.cpu().numpy()
-            options["bounds"] = region_of_interest([pts], options.get("padding", 0.15))
+        if options.get("bounds") is None:
+            options["bounds"] = self.target_bounds(options.get("padding", 0.15))
         return options
 
     @torch.no_grad()
