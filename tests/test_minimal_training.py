@@ -5,6 +5,8 @@ import json
 import math
 
 import numpy as np
+import pytest
+import torch
 from test_train import compose_cfg
 
 from deepcurrents.train import train
@@ -40,6 +42,19 @@ def test_planar_circle_gives_the_disk(tmp_path):
     assert trace[-5:].mean() < trace[:5].mean()
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert saved["steps"] == 700
+    # the run meshed by the phase (auto for minimal surfaces); the paper's level set f = s gives the same disk,
+    # and the phase mesh's vertices lie where e^{iφ} is opposite its off-surface value θ
+    from deepcurrents.eval.meshing import current_phase, extract_surface
+    from deepcurrents.models.loading import load_module
+
+    current = load_module(tmp_path / "checkpoints" / "last.ckpt").current
+    phase = extract_surface(current, resolution=64, method="phase")
+    level = extract_surface(current, resolution=64, method="level_set")
+    assert phase.mesh.area == pytest.approx(metrics["mesh_area"], rel=1e-9)
+    assert abs(level.mesh.area - exact) < 0.10 * exact and abs(phase.mesh.area - level.mesh.area) < 0.05 * exact
+    inner = phase.mesh.vertices[np.linalg.norm(phase.mesh.vertices[:, :2], axis=1) < 0.8 * radius]
+    rel = current_phase(current, torch.as_tensor(inner, dtype=torch.float32)).numpy() - phase.level
+    assert np.abs(np.sin(rel)).max() < 0.1 and np.cos(rel).max() < 0
 
 
 def test_two_points_give_the_segment(tmp_path):

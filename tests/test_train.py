@@ -119,6 +119,7 @@ def bad_obj(tmp_path):
         (["data.num_samples=0"], "num_samples"),
         (["trainer.max_steps=0"], "max_steps"),
         (["evaluation.mesh.resolution=2"], "resolution"),
+        (["evaluation.mesh.method=marching"], "evaluation.mesh.method"),
         (["model.net.width=0"], "width"),
         (["model.rff.sigma=-1"], r"model\.rff\.sigma"),
         (["model.rff.num_frequencies=0"], r"model\.rff\.num_frequencies"),

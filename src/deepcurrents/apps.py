@@ -18,6 +18,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
 from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
+from deepcurrents.eval.meshing import mesh_method
 
 log = logging.getLogger("deepcurrents")
 
@@ -84,4 +85,4 @@ def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> di
     elif settings.get("bounds") is None and callable(getattr(module, "target_bounds", None)):
         # reconstructions: the run meshed over its target's box, so must the apps
         settings["bounds"] = module.target_bounds(settings.get("padding", 0.15))
-    return settings
+    return mesh_method(settings, getattr(module, "mesh_method", "phase"))

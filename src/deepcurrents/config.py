@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError
 
@@ -40,3 +40,6 @@ def validate_config(cfg: DictConfig) -> None:
     for key in ("evaluation.mesh.delta", "evaluation.mesh.boundary_tube", "evaluation.mesh.padding",
                 "evaluation.curve.delta", "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
+    method = OmegaConf.select(cfg, "evaluation.mesh.method")
+    if method is not None and method not in ("auto", "phase", "level_set"):
+        raise ConfigError(f"evaluation.mesh.method={method!r} must be auto, phase or level_set.")

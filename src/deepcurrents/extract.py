@@ -41,7 +41,8 @@ class ExtractConfig:
     boundary_tube: float | None = None
     close_boundary: bool | None = None
     newton_steps: int | None = None
-    min_alignment: float | None = None  # keep faces with cos(ω, ∇f) ≥ this (-1: off)
+    method: str | None = None  # phase | level_set (the paper's f = s) | auto (the model kind's own)
+    min_alignment: float | None = None  # level_set: keep faces with cos(ω, ∇f) ≥ this (-1: off)
     min_component: float | None = None  # drop pieces below this fraction of the area (0: off)
     padding: float | None = None  # the meshed box: Γ's bounding box grown by this
 
@@ -59,6 +60,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
         value = cfg.get(key)
         if value is not None and not lo <= value <= hi:
             raise ConfigError(f"{key}={value} must be in [{lo:g}, {hi:g}].")
+    if cfg.method is not None and cfg.method not in ("auto", "phase", "level_set"):
+        raise ConfigError(f"method='{cfg.method}' must be auto, phase or level_set.")
     device = resolve_device(cfg.device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
@@ -66,7 +69,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
         raise ConfigError(f"ckpt_path='{cfg.ckpt_path}' holds a 2D current: there is no surface to extract.")
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
                              boundary_tube=cfg.boundary_tube, close_boundary=cfg.close_boundary,
-                             newton_steps=cfg.newton_steps, min_alignment=cfg.min_alignment,
+                             newton_steps=cfg.newton_steps, method=cfg.method, min_alignment=cfg.min_alignment,
                              min_component=cfg.min_component, padding=cfg.padding)
     result = extract_surface(current, **settings)
     mesh = result.mesh

@@ -28,8 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 import trimesh
+from scipy.ndimage import map_coordinates
 from skimage.measure import find_contours, marching_cubes
 
+from deepcurrents.geometry.biot_savart import solid_angle
 from deepcurrents.geometry.polyline import closed_loop_segments, project_to_segments
 
 log = logging.getLogger(__name__)
@@ -40,7 +42,7 @@ class MeshingResult:
     """The extracted mesh and what happened on the way (for metrics and logs)."""
 
     mesh: trimesh.Trimesh
-    level: float
+    level: float  # the level s of f (method "level_set") or the off-surface phase θ (method "phase")
     bounds: np.ndarray
     voxel: float
     tube: float
@@ -231,8 +233,24 @@ def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray):
     return loop, tris
 
 
-def _newton_to_level(current, verts: np.ndarray, level: float, max_step: float, steps: int) -> np.ndarray:
-    """Moves vertices onto f = level: v ← v − clamp((f − s)∇f/|∇f|², max_step)."""
+def current_phase(current, x: torch.Tensor, chunk_size: int = 1 << 16) -> torch.Tensor:
+    """The phase φ = f/(2·alpha_scale) + Ω_Γ/2 of a 3D current at points x (P, 3) → (P,) float64.
+
+    Off the surface ω = ∇f + alpha_scale·∇Ω ≈ 0, so φ is constant there (mod 2π); across the surface f
+    jumps by ±4π·alpha_scale, so e^{iφ} turns once around the circle. Ω is defined modulo 4π, which e^{iφ}
+    does not see: no branch cut. The surface is where e^{iφ} is opposite its off-surface value."""
+    out = []
+    for chunk in torch.split(x, chunk_size):
+        f = current.evaluate(chunk, chunk_size, omega=False).double()
+        omega = solid_angle(chunk.double(), [lp.to(chunk.device) for lp in current.loops])
+        out.append(f / (2.0 * current.alpha_scale) + 0.5 * omega)
+    return torch.cat(out)
+
+
+def _newton_to_level(current, verts: np.ndarray, level: float, max_step: float, steps: int,
+                     theta: float | None = None) -> np.ndarray:
+    """Moves vertices onto the extracted level set by clamped Newton steps: v ← v − clamp(g∇g/|∇g|², max_step),
+    with g = f − level (level set), or g = sin(φ − θ) and ∇g = cos(φ − θ)·ω/(2·alpha_scale) (phase)."""
     if steps <= 0 or len(verts) == 0:
         return verts
     dev = _device(current)
@@ -240,11 +258,18 @@ def _newton_to_level(current, verts: np.ndarray, level: float, max_step: float, 
     for _ in range(steps):
         moved = []
         for chunk in torch.split(x, 1 << 15):
-            with torch.enable_grad():
-                c = chunk.detach().requires_grad_(True)
-                f = current.f(c)
-                (g,) = torch.autograd.grad(f.sum(), c)
-            delta = ((f.detach() - level) / (g * g).sum(-1).clamp_min(1e-12)).unsqueeze(-1) * g
+            if theta is None:
+                with torch.enable_grad():
+                    c = chunk.detach().requires_grad_(True)
+                    f = current.f(c)
+                    (g,) = torch.autograd.grad(f.sum(), c)
+                value = f.detach() - level
+            else:
+                rel = current_phase(current, chunk) - theta
+                _, omega = current.evaluate(chunk)
+                value = torch.sin(rel).float()
+                g = (torch.cos(rel).float() / (2.0 * current.alpha_scale)).unsqueeze(-1) * omega
+            delta = (value / (g * g).sum(-1).clamp_min(1e-12)).unsqueeze(-1) * g
             norm = delta.norm(dim=-1, keepdim=True)
             delta = delta * torch.clamp(max_step / norm.clamp_min(1e-12), max=1.0)
             moved.append(chunk - delta)
@@ -262,6 +287,20 @@ def _drop_small_components(verts, faces, min_fraction: float):
     return faces[(areas >= min_fraction * areas.sum())[labels]]
 
 
+MESH_METHODS = ("phase", "level_set")
+
+
+def mesh_method(options: dict, default: str) -> dict:
+    """``options`` with ``method`` "auto" (or unset) replaced by the model kind's ``default``: "phase" for
+    minimal currents (ω ≈ 0 off the surface, so the phase is constant there), "level_set" for currents
+    trained under a reconstruction metric (ω along the target's normal is free off the surface, which
+    can turn the phase over twice: doubled sheets)."""
+    options = dict(options)
+    if options.get("method") in (None, "auto"):
+        options["method"] = default
+    return options
+
+
 @torch.no_grad()
 def extract_surface(
     current,
@@ -274,6 +313,7 @@ def extract_surface(
     min_component: float = 0.01,
     min_alignment: float = 0.5,
     close_boundary: bool = True,
+    method: str = "phase",
     chunk_size: int = 1 << 16,
 ) -> MeshingResult:
     """The surface of a 3D current as a triangle mesh whose border lies on Γ (see the module docstring).
@@ -288,7 +328,13 @@ def extract_surface(
         min_alignment: keep faces where cos(ω, ∇f) is at least this (drops the complementary level
             surface, where ω points against ∇f).
         close_boundary: False gives the paper's mesh (|ω| ≥ δ cut only, no tube, no strip).
+        method: "phase" (default): the zero set of sin(φ − θ) where cos(φ − θ) < 0, φ the current's phase
+            (``current_phase``), θ its circular mean over the grid (the off-surface value): every sheet of
+            the surface, whatever f's offset there. "level_set": the paper's f = s, one level for the whole
+            surface (it misses sheets where f's jump does not straddle s, e.g. an undertrained trefoil).
     """
+    if method not in MESH_METHODS:
+        raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     if bounds is None:
         bounds = region_of_interest(loops, padding)
@@ -299,15 +345,28 @@ def extract_surface(
     axes = [np.linspace(bounds[0, i], bounds[0, i] + voxel * (shape[i] - 1), shape[i]) for i in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     dev = _device(current)
-    f = current.evaluate(torch.as_tensor(grid, dtype=torch.float32, device=dev), chunk_size, omega=False)
-    vol = f.cpu().numpy().reshape(tuple(shape))
-    level = level_on_boundary(current, loops, voxel / 4)
+    points = torch.as_tensor(grid, dtype=torch.float32, device=dev)
+    theta = None
+    if method == "phase":
+        phase = current_phase(current, points, chunk_size)
+        theta = float(torch.angle(torch.exp(1j * phase).mean()))  # off the surface, where most of the grid is
+        rel = (phase - theta).cpu().numpy().reshape(tuple(shape))
+        vol, side = np.sin(rel), np.cos(rel)
+        level = 0.0
+    else:
+        f = current.evaluate(points, chunk_size, omega=False)
+        vol = f.cpu().numpy().reshape(tuple(shape))
+        level = level_on_boundary(current, loops, voxel / 4)
     tube = max(boundary_tube, 1.5 * voxel) if close_boundary else 0.0
-    empty = MeshingResult(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), level, bounds, voxel, tube, 0)
+    empty = MeshingResult(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), level if theta is None else theta,
+                          bounds, voxel, tube, 0)
     if not (vol.min() < level < vol.max()):
         log.warning("The level set f = %.4g does not cross the meshing region; the mesh is empty.", level)
         return empty
     verts, faces, _, _ = marching_cubes(vol, level=level, spacing=(voxel,) * 3)
+    if theta is not None:
+        # sin(φ − θ) also vanishes off the surface (φ ≈ θ there): keep the faces where φ is opposite θ
+        faces = faces[map_coordinates(side, (verts / voxel).T, order=1)[faces].mean(1) < 0]
     verts = verts.astype(np.float64) + bounds[0]
     faces = faces.astype(np.int64)
 
@@ -322,7 +381,7 @@ def extract_surface(
         centroids = torch.as_tensor(verts[faces].mean(1), dtype=torch.float32, device=dev)
         _, omega = current.evaluate(centroids, chunk_size)
         keep = omega.norm(dim=-1) >= delta
-        if tube > 0 and min_alignment > -1:
+        if tube > 0 and min_alignment > -1 and theta is None:
             grad_f = omega - current.alpha(centroids)
             cos = (omega * grad_f).sum(-1) / (omega.norm(dim=-1) * grad_f.norm(dim=-1)).clamp_min(1e-30)
             keep &= cos >= min_alignment
@@ -336,11 +395,12 @@ def extract_surface(
     verts, faces = verts[used], remap[faces]
 
     if tube > 0 and newton_steps > 0:
-        verts = _newton_to_level(current, verts, level, voxel, newton_steps)
+        verts = _newton_to_level(current, verts, level, voxel, newton_steps, theta)
 
     # orient the faces along the current: ω points along the normal of the surface it represents
     mesh = trimesh.Trimesh(verts, faces, process=False)
-    _, omega = current.evaluate(torch.as_tensor(mesh.triangles_center, dtype=torch.float32, device=dev), chunk_size)
+    centres = torch.as_tensor(np.array(mesh.triangles_center), dtype=torch.float32, device=dev)
+    _, omega = current.evaluate(centres, chunk_size)
     flux = (mesh.face_normals * omega.cpu().numpy()).sum(1) @ mesh.area_faces
     if flux < 0:
         faces = faces[:, ::-1].copy()
@@ -366,7 +426,7 @@ def extract_surface(
     mesh = trimesh.Trimesh(verts, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
-    return MeshingResult(mesh, level, bounds, voxel, tube, zipped)
+    return MeshingResult(mesh, level if theta is None else theta, bounds, voxel, tube, zipped)
 
 
 @torch.no_grad()

@@ -25,7 +25,7 @@ import torch
 
 from deepcurrents.errors import ConfigError, UserInputError
 from deepcurrents.eval.mesh_grid import plot_mesh_grid
-from deepcurrents.eval.meshing import extract_surface
+from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import boundary_error, unidirectional_chamfer
 from deepcurrents.losses import current_loss, surface_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
@@ -58,6 +58,8 @@ class AutodecoderModule(DeepCurrentsModule):
             saved in checkpoints).
         train_bounds: S arrays (2, 3), each training mesh's bounding box (saved in checkpoints).
     """
+
+    mesh_method = "level_set"  # trained under the reconstruction metric (see eval.meshing.mesh_method)
 
     def __init__(
         self,
@@ -155,7 +157,7 @@ class AutodecoderModule(DeepCurrentsModule):
     def mesh_member(self, current: ConditionedCurrent, bounds: np.ndarray):
         """``extract_surface`` of a member with the evaluation's meshing settings in ``bounds``."""
         mesh_cfg = {k: v for k, v in dict(self.evaluation.get("mesh", {})).items() if k not in ("bounds", "padding")}
-        return extract_surface(current, bounds=bounds, **mesh_cfg)
+        return extract_surface(current, bounds=bounds, **mesh_method(mesh_cfg, self.mesh_method))
 
     # --------------------------------------------------------------------------------------- training
     def compute_losses(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
+from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method
 from deepcurrents.eval.metrics import boundary_error, curve_length, mass_estimate, mass_to_area
 from deepcurrents.eval.plots import plot_current_2d, plot_mesh
 from deepcurrents.losses import current_loss
@@ -124,9 +124,11 @@ class CurrentModule(DeepCurrentsModule):
         (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         return metrics
 
+    mesh_method = "phase"  # what evaluation.mesh.method=auto means for this model kind
+
     def mesh_options(self) -> dict[str, Any]:
         """Keyword arguments of ``extract_surface`` for the final mesh (reconstruction adds ``bounds``)."""
-        return dict(self.evaluation.get("mesh", {}))
+        return mesh_method(self.evaluation.get("mesh", {}), self.mesh_method)
 
     def _plot_2d(self, curves, path: Path) -> None:
         dev = next(self.parameters()).device

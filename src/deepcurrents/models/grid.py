@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from deepcurrents.errors import ConfigError, NonFiniteLossError
-from deepcurrents.eval.meshing import extract_surface
+from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import boundary_error, mass_estimate, mass_to_area
 from deepcurrents.eval.plots import plot_mesh
 from deepcurrents.geometry import biot_savart
@@ -224,6 +224,8 @@ class GridModule(L.LightningModule):
         self.converged = False
         self.run_config: dict | None = None
 
+    mesh_method = "phase"  # what evaluation.mesh.method=auto means for this model kind
+
     @property
     def dim(self) -> int:
         return 3
@@ -327,7 +329,7 @@ class GridModule(L.LightningModule):
         last = self.trainer.optimizers[0].last if opt_state else None
         if last is not None:
             metrics["primal_residual"], metrics["dual_residual"] = last.primal, last.dual
-        result = extract_surface(self.current, **self.evaluation.get("mesh", {}))
+        result = extract_surface(self.current, **mesh_method(self.evaluation.get("mesh", {}), self.mesh_method))
         mesh = result.mesh
         loops = [lp.cpu().double().numpy() for lp in self.current.loops]
         metrics["mesh_area"] = float(mesh.area)

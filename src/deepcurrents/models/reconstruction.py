@@ -133,6 +133,8 @@ class ReconstructionModule(CurrentModule):
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
         return loss
 
+    mesh_method = "level_set"  # the metric leaves ω along n free off the surface (see eval.meshing.mesh_method)
+
     def target_bounds(self, padding: float = 0.15) -> np.ndarray | None:
         """Where a reconstruction is meshed: the target's bounding box grown by ``padding`` × its largest
         extent (Γ's box, the minimal-surface default, is too small for a surface that bulges away from its
