@@ -361,7 +361,9 @@ def extract_surface(
     empty = MeshingResult(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), level if theta is None else theta,
                           bounds, voxel, tube, 0)
     if not (vol.min() < level < vol.max()):
-        log.warning("The level set f = %.4g does not cross the meshing region; the mesh is empty.", level)
+        what = ("The current's phase does not turn over" if theta is not None
+                else f"The level set f = {level:.4g} does not cross")
+        log.warning("%s in the meshing region; the mesh is empty.", what)
         return empty
     verts, faces, _, _ = marching_cubes(vol, level=level, spacing=(voxel,) * 3)
     if theta is not None:
