@@ -5,6 +5,7 @@ from __future__ import annotations
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError
+from deepcurrents.eval.meshing import MESH_METHOD_CHOICES
 
 
 def _positive_int(cfg: DictConfig, key: str, minimum: int = 1) -> None:
@@ -41,5 +42,5 @@ def validate_config(cfg: DictConfig) -> None:
                 "evaluation.curve.delta", "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
     method = OmegaConf.select(cfg, "evaluation.mesh.method")
-    if method is not None and method not in ("auto", "phase", "level_set"):
-        raise ConfigError(f"evaluation.mesh.method={method!r} must be auto, phase or level_set.")
+    if method is not None and method not in MESH_METHOD_CHOICES:
+        raise ConfigError(f"evaluation.mesh.method={method!r} must be one of {', '.join(MESH_METHOD_CHOICES)}.")

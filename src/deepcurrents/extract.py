@@ -17,7 +17,7 @@ from omegaconf import MISSING, DictConfig
 
 from deepcurrents.apps import mesh_settings, output_dir, positive_int, register_app, run_app
 from deepcurrents.errors import ConfigError
-from deepcurrents.eval.meshing import extract_surface
+from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_surface
 from deepcurrents.eval.metrics import boundary_error
 from deepcurrents.eval.render import Camera, render_mesh
 from deepcurrents.models.loading import load_module, resolve_device, viewable_current
@@ -60,8 +60,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
         value = cfg.get(key)
         if value is not None and not lo <= value <= hi:
             raise ConfigError(f"{key}={value} must be in [{lo:g}, {hi:g}].")
-    if cfg.method is not None and cfg.method not in ("auto", "phase", "level_set"):
-        raise ConfigError(f"method='{cfg.method}' must be auto, phase or level_set.")
+    if cfg.method is not None and cfg.method not in MESH_METHOD_CHOICES:
+        raise ConfigError(f"method='{cfg.method}' must be one of {', '.join(MESH_METHOD_CHOICES)}.")
     device = resolve_device(cfg.device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)

@@ -239,12 +239,14 @@ def current_phase(current, x: torch.Tensor, chunk_size: int = 1 << 16) -> torch.
     Off the surface ω = ∇f + alpha_scale·∇Ω ≈ 0, so φ is constant there (mod 2π); across the surface f
     jumps by ±4π·alpha_scale, so e^{iφ} turns once around the circle. Ω is defined modulo 4π, which e^{iφ}
     does not see: no branch cut. The surface is where e^{iφ} is opposite its off-surface value."""
-    out = []
-    for chunk in torch.split(x, chunk_size):
-        f = current.evaluate(chunk, chunk_size, omega=False).double()
-        omega = solid_angle(chunk.double(), [lp.to(chunk.device) for lp in current.loops])
-        out.append(f / (2.0 * current.alpha_scale) + 0.5 * omega)
-    return torch.cat(out)
+    return torch.cat([_phase(current, chunk, current.evaluate(chunk, chunk_size, omega=False))
+                      for chunk in torch.split(x, chunk_size)])
+
+
+def _phase(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    """φ at points x (P, 3) from f already evaluated there (P,) → (P,) float64."""
+    omega = solid_angle(x.double(), [lp.to(x.device) for lp in current.loops])
+    return f.double() / (2.0 * current.alpha_scale) + 0.5 * omega
 
 
 def _newton_to_level(current, verts: np.ndarray, level: float, max_step: float, steps: int,
@@ -265,8 +267,8 @@ def _newton_to_level(current, verts: np.ndarray, level: float, max_step: float, 
                     (g,) = torch.autograd.grad(f.sum(), c)
                 value = f.detach() - level
             else:
-                rel = current_phase(current, chunk) - theta
-                _, omega = current.evaluate(chunk)
+                f, omega = current.evaluate(chunk)
+                rel = _phase(current, chunk, f) - theta
                 value = torch.sin(rel).float()
                 g = (torch.cos(rel).float() / (2.0 * current.alpha_scale)).unsqueeze(-1) * omega
             delta = (value / (g * g).sum(-1).clamp_min(1e-12)).unsqueeze(-1) * g
@@ -288,6 +290,7 @@ def _drop_small_components(verts, faces, min_fraction: float):
 
 
 MESH_METHODS = ("phase", "level_set")
+MESH_METHOD_CHOICES = ("auto", *MESH_METHODS)  # what evaluation.mesh.method and the apps accept
 
 
 def mesh_method(options: dict, default: str) -> dict:

@@ -44,8 +44,8 @@ class ClosestPointModule(DeepCurrentsModule):
     """
 
     def __init__(self, net: dict, optim: dict, rff: dict | None = None, evaluation: dict | None = None,
-                 target: dict | None = None,
-                 boundary: dict | None = None, near_fraction: float = 0.5, near_sigma: float = 0.05,
+                 target: dict | None = None, boundary: dict | None = None, near_fraction: float = 0.5,
+                 near_sigma: float = 0.05,
                  time_budget_s: float | None = None, wall_time_from: str | None = None):
         super().__init__(optim)
         self.save_hyperparameters(ignore=["target"])
