@@ -28,7 +28,7 @@ $(ANNY_STAMP): $(STAMP)
 # human-part datasets, offline: data/anny/<heads|hands|forearms|arms|torsos|feet>/NNN.ply (100 bodies)
 DATA_BODIES ?= 100
 data: $(ANNY_STAMP)
-	$(BIN)/python -m deepcurrents.data.human_parts --source anny --num $(DATA_BODIES) --out data
+	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
 
 run: setup
 	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu hydra.run.dir=$(RUN_DIR)

@@ -1,4 +1,4 @@
-"""Speed of the Fig. 4 grid solver (Wang & Chern 2021 by ADMM, deepcurrents.geometry.grid_currents):
+"""Speed of the Fig. 4 grid solver (Wang & Chern 2021 by ADMM, deepcurrents.baselines.grid_solver):
 ADMM iterations per second at 64³ and 90³ (float64, the default, and float32), the share of the φ-step
 (the cosine-transform Poisson solve), and the one-off cost of sampling α at the corners (trefoil).
 
@@ -20,8 +20,7 @@ from pathlib import Path
 
 import torch
 
-from deepcurrents.geometry import biot_savart, trefoil
-from deepcurrents.geometry.grid_currents import (
+from deepcurrents.baselines.grid_solver import (
     GridProblem,
     admm_init,
     admm_step,
@@ -29,6 +28,7 @@ from deepcurrents.geometry.grid_currents import (
     grid_spacing,
     grid_vertices,
 )
+from deepcurrents.geometry import biot_savart, trefoil
 
 
 def sync(device: torch.device) -> None:

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import torch
 
+from deepcurrents.cli.render import PRESETS
 from deepcurrents.eval.render import (
     DensitySettings,
     _box_intersection,
@@ -30,7 +31,6 @@ from deepcurrents.eval.render import (
 )
 from deepcurrents.geometry import trefoil
 from deepcurrents.nn import NeuralCurrent
-from deepcurrents.render import PRESETS
 
 
 def sync(device: torch.device) -> None:

@@ -18,13 +18,13 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
+from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
+from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
+from deepcurrents.cli.render import RenderConfig, render_checkpoint
 from deepcurrents.errors import ConfigError, UserInputError
-from deepcurrents.evaluate import EvaluateConfig, evaluate_checkpoint
-from deepcurrents.extract import ExtractConfig, extract_checkpoint
+from deepcurrents.experiments.runner import train
 from deepcurrents.models import CurrentModule
 from deepcurrents.models.loading import CheckpointError, load_module
-from deepcurrents.render import RenderConfig, render_checkpoint
-from deepcurrents.train import train
 
 RADIUS = 0.6  # data.curve=circle: the named circle of radius 0.6 in the xy-plane
 DISK = [  # about the smallest setting whose extracted mesh is the disk (area within a few %)

@@ -115,7 +115,7 @@ def compose_cfg(overrides: list[str]):
 @pytest.fixture(scope="module")
 def trained(_one_thread, family_dir, tmp_path_factory):
     """A tiny family trained on the CPU, and the same model untrained, both evaluated."""
-    from deepcurrents.train import build, train
+    from deepcurrents.experiments.runner import build, train
 
     out = tmp_path_factory.mktemp("run")
     cfg = compose_cfg(tiny_overrides(family_dir, out, STEPS))
@@ -333,8 +333,8 @@ def trained_dir(out: Path) -> Path:
 
 
 def test_resuming_with_another_family_is_one_sentence(trained, tmp_path):
+    from deepcurrents.experiments.runner import train
     from deepcurrents.models.autodecoder import CheckpointMismatchError
-    from deepcurrents.train import train
 
     out, _, _ = trained
     for name in ("000_cap", "001_saddle"):  # two meshes instead of three
@@ -377,8 +377,8 @@ def run_module(*args: str) -> subprocess.CompletedProcess:
 def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp_path):
     from omegaconf import OmegaConf
 
-    from deepcurrents.generate import GenerateConfig, generate
-    from deepcurrents.interpolate import InterpolateConfig, interpolate
+    from deepcurrents.cli.generate import GenerateConfig, generate
+    from deepcurrents.cli.interpolate import InterpolateConfig, interpolate
 
     out, _, _ = trained
     ckpt = str(out / "checkpoints" / "last.ckpt")

@@ -13,9 +13,7 @@ from conftest import CONF_DIR
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
-from deepcurrents.errors import ConfigError
-from deepcurrents.geometry import biot_savart, circle
-from deepcurrents.geometry.grid_currents import (
+from deepcurrents.baselines.grid_solver import (
     GridProblem,
     admm_init,
     admm_step,
@@ -33,7 +31,9 @@ from deepcurrents.geometry.grid_currents import (
     solve_poisson,
     trapezoid_weights,
 )
-from deepcurrents.train import train
+from deepcurrents.errors import ConfigError
+from deepcurrents.experiments.runner import train
+from deepcurrents.geometry import biot_savart, circle
 
 F64 = torch.float64
 
@@ -192,7 +192,7 @@ def test_minimal_grid_run_writes_its_files_and_resumes(tmp_path):
 
 
 def test_grid_is_sized_like_the_network_and_rejects_bad_input(tmp_path):
-    from deepcurrents.models.grid import matched_resolution
+    from deepcurrents.baselines.grid import matched_resolution
 
     n, count = matched_resolution(dict(width=256, depth=4), dict(num_frequencies=1024), [torch.tensor(circle())])
     assert (n, count) == (90, 725_249)  # the paper's 90³ for its 725,249 weights

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from deepcurrents.cli.make_dataset import main
 from deepcurrents.data.human_parts import (
     CATEGORIES,
     DatasetError,
@@ -15,7 +16,6 @@ from deepcurrents.data.human_parts import (
     dataset_path,
     faust_parts,
     kabsch_rotation,
-    main,
     write_parts,
 )
 from deepcurrents.data.targets import mesh_boundary_loops

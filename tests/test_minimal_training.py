@@ -9,7 +9,7 @@ import pytest
 import torch
 from test_train import compose_cfg
 
-from deepcurrents.train import train
+from deepcurrents.experiments.runner import train
 
 SMALL = [
     "logger=csv", "preset=cpu", "trainer=cpu", "trainer.enable_progress_bar=false",

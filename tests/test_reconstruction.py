@@ -20,8 +20,7 @@ from deepcurrents.data.human_parts import write_parts
 from deepcurrents.data.recon import ReconstructionDataModule, curve_metric_2d, semicircle
 from deepcurrents.errors import UserInputError
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface
-from deepcurrents.suites import run_suite
-from deepcurrents.train import train
+from deepcurrents.experiments.runner import run_suite, train
 
 TINY = [
     "logger=none", "preset=cpu", "trainer=cpu", "trainer.enable_progress_bar=false",
@@ -91,7 +90,7 @@ def test_spherical_cap_is_reconstructed(tmp_path, cap_file):
     # the evaluate app, from the checkpoint alone, meshes where the run did (the target's box) and gets its UCD
     from omegaconf import OmegaConf
 
-    from deepcurrents.evaluate import EvaluateConfig, evaluate_checkpoint
+    from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
 
     cfg = OmegaConf.structured(EvaluateConfig)
     cfg.ckpt_path, cfg.target, cfg.samples = str(tmp_path / "checkpoints" / "last.ckpt"), str(cap_file), 4000

@@ -15,7 +15,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import OmegaConf
 
 from deepcurrents.errors import UserInputError
-from deepcurrents.train import build, train
+from deepcurrents.experiments.runner import build, train
 
 TINY = [
     "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=6", "trainer.enable_progress_bar=false",

@@ -14,12 +14,11 @@ Preprocessing per category (authors' ``preprocess_data.py``): keep the part's la
 centre each mesh, rotate it onto the category's first mesh (Kabsch on corresponding vertices), then one scale
 per category so that every mesh fits in [-0.5, 0.5]^3.
 
-Command line: ``python -m deepcurrents.data.human_parts --source anny --num 100 --out data``.
+Command line: ``deepcurrents-make-dataset --source anny --num 100 --out data`` (``deepcurrents.cli.make_dataset``).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import re
@@ -260,32 +259,7 @@ def dataset_path(root: str | Path, source: str, category: str, index: int) -> Pa
     return files[index]
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--source", choices=("anny", "faust"), default="anny")
-    parser.add_argument("--out", default="data", help="root folder; parts go to OUT/SOURCE/CATEGORY/NNN.ply")
-    parser.add_argument("--num", type=int, default=100, help="Anny: number of bodies")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--faust-root", default=None, help="FAUST: the segmentation benchmark's root folder")
-    parser.add_argument("--categories", nargs="*", default=list(CATEGORIES), choices=CATEGORIES)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    try:
-        if args.source == "anny":
-            parts = anny_parts(args.num, args.seed, args.categories)
-            meta = {"generator": "anny", "bodies": args.num, "seed": args.seed}
-        else:
-            if not args.faust_root:
-                raise DatasetError("--faust-root is required for --source faust.")
-            parts = faust_parts(args.faust_root, args.categories)
-            meta = {"generator": "faust", "root": str(args.faust_root)}
-        files = write_parts(parts, Path(args.out), args.source, meta)
-    except UserInputError as err:
-        raise SystemExit(f"error: {err}") from None
-    for name, (p, f, s) in parts.items():
-        log.info("%s: %d meshes, %d faces each, scale %.4g", name, len(p), len(f), s)
-    log.info("wrote %d meshes under %s/%s", len(files), args.out, args.source)
+if __name__ == "__main__":  # ``python -m deepcurrents.data.human_parts`` is kept as an alias of the command
+    from deepcurrents.cli.make_dataset import main
 
-
-if __name__ == "__main__":
     main()

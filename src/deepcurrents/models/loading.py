@@ -51,9 +51,17 @@ def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
     return ckpt
 
 
+# model classes that moved: checkpoints written before the move name the old path
+MOVED_CLASSES = {
+    "deepcurrents.models.closest_point.ClosestPointModule": "deepcurrents.baselines.closest_point.ClosestPointModule",
+    "deepcurrents.models.grid.GridModule": "deepcurrents.baselines.grid.GridModule",
+}
+
+
 def module_class(class_path: str, ckpt_path: str | Path = "") -> type[DeepCurrentsModule]:
     """The LightningModule class named by a checkpoint, checked to be a DeepCurrents model."""
-    module_name, _, name = str(class_path).rpartition(".")
+    class_path = MOVED_CLASSES.get(str(class_path), str(class_path))
+    module_name, _, name = class_path.rpartition(".")
     try:
         cls = getattr(importlib.import_module(module_name), name)
     except (ImportError, AttributeError, ValueError):

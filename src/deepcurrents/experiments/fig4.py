@@ -1,6 +1,6 @@
 """Paper Fig. 4: minimal currents of the grid method (Wang & Chern 2021) beside DeepCurrents.
 
-The report of ``experiment=fig4`` (a suite, see ``deepcurrents.suites``): its members are named
+The report of ``experiment=fig4`` (a suite, see ``deepcurrents.experiments.tables``): its members are named
 ``<method>_<curve>`` (method ``grid`` or ``network``) and each wrote ``metrics.json``, ``mesh.ply`` and
 ``checkpoints/last.ckpt``. It writes ``fig4.png`` (one row per curve, the two methods side by side,
 rendered by ``plot_mesh`` with the same camera, framing and colours) and ``fig4.csv`` / ``fig4.md``.
@@ -21,7 +21,7 @@ import torch  # noqa: E402
 import trimesh  # noqa: E402
 
 from deepcurrents.eval.plots import plot_mesh  # noqa: E402
-from deepcurrents.suites import write_table  # noqa: E402
+from deepcurrents.experiments.tables import write_table  # noqa: E402
 
 log = logging.getLogger(__name__)
 

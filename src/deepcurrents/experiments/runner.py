@@ -1,13 +1,24 @@
-"""Training entry point: config → DataModule → LightningModule → Trainer → final evaluation.
+"""Running experiments: config → DataModule → LightningModule → Trainer → final evaluation, and suites
+(experiments made of several runs, e.g. Fig. 4, Table 1, the hand ablation).
 
-The project's ``train.py`` is a thin Hydra wrapper around :func:`train`.
+A suite is declared in an experiment's config::
+
+    suite:
+      runs:                                  # each: a name and Hydra overrides of the root config
+        - {name: full, overrides: [experiment=recon_hand, ablation=full]}
+        - {name: relu, overrides: [experiment=recon_hand, ablation=relu]}
+      report: deepcurrents.experiments.tables.write_table  # callable(suite_dir, results, cfg) → writes files
+
+The command line's own overrides (e.g. ``preset=cpu``, ``trainer=gpu``) are passed on to every member,
+except ``experiment=`` (each member names its own). Members run in this process, one after another.
+
+The command ``python train.py …`` (``deepcurrents.cli.train``) is a thin wrapper around :func:`train`.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,9 +28,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
 
-from deepcurrents.checkpointing import AtomicCheckpointIO
-from deepcurrents.config import validate_config
-from deepcurrents.errors import NonFiniteLossError, UserInputError
+from deepcurrents.errors import UserInputError
+from deepcurrents.experiments.config import validate_config
+from deepcurrents.models.checkpointing import AtomicCheckpointIO
 from deepcurrents.models.current_module import boundary_spec
 
 log = logging.getLogger("deepcurrents")
@@ -80,13 +91,11 @@ def build(cfg: DictConfig):
 
 def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None:
     """Trains and evaluates one run into ``out_dir`` (default: the run directory); returns its metrics
-    (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (deepcurrents.suites).
+    (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (deepcurrents.experiments.tables).
     """
     out_dir = Path(out_dir) if out_dir is not None else output_dir(cfg)
     out_dir.mkdir(parents=True, exist_ok=True)
     if cfg.get("suite"):
-        from deepcurrents.suites import run_suite
-
         run_suite(cfg, out_dir)
         return None
     validate_config(cfg)
@@ -111,7 +120,7 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
         return None
     metrics = module.final_evaluation(out_dir)
     log.info("metrics: %s", json.dumps(metrics))
-    for cb in trainer.callbacks:  # final media (deepcurrents.callbacks.MediaCallback) before loggers close
+    for cb in trainer.callbacks:  # final media (deepcurrents.models.callbacks.MediaCallback) before loggers close
         hook = getattr(cb, "on_final_evaluation", None)
         if callable(hook):
             hook(trainer, module, metrics, out_dir)
@@ -124,21 +133,26 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
     return metrics
 
 
-def run_cli(cfg: DictConfig) -> float | None:
-    """Runs :func:`train`, turning user errors into one sentence and a non-zero exit (no traceback).
+def inherited_overrides() -> list[str]:
+    """The command line's overrides that every suite member inherits (all but ``experiment=``)."""
+    if not HydraConfig.initialized():
+        return []
+    return [o for o in HydraConfig.get().overrides.task if not o.lstrip("+~").startswith("experiment=")]
 
-    Returns the value an Optuna sweep minimises (``cfg.objective``), if set.
-    """
-    try:
-        metrics = train(cfg)
-    except UserInputError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
-    except NonFiniteLossError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(3)
-    objective = cfg.get("objective")
-    if metrics is not None and objective:
-        value = metrics.get(objective)
-        return float(value) if value is not None else float("inf")
-    return None
+
+def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:
+    """Runs every member of ``cfg.suite`` into ``out_dir/<name>`` and calls the report. → member results."""
+    inherited = inherited_overrides() if extra_overrides is None else list(extra_overrides)
+    results = []
+    for member in cfg.suite.runs:
+        name = str(member.name)
+        overrides = list(member.overrides) + [o for o in inherited if not o.startswith("hydra.")]
+        member_dir = out_dir / name
+        log.info("suite member %s: %s", name, " ".join(overrides))
+        member_cfg = hydra.compose(config_name="train", overrides=overrides + [f"paths.output_dir={member_dir}"])
+        metrics = train(member_cfg, out_dir=member_dir)
+        results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
+    (out_dir / "suite.json").write_text(json.dumps(results, indent=2))
+    report = cfg.suite.get("report") or "deepcurrents.experiments.tables.write_table"
+    hydra.utils.get_method(report)(out_dir, results, cfg)
+    return results

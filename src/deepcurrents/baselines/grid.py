@@ -1,5 +1,5 @@
 """The grid baseline of paper Fig. 4 (Wang & Chern 2021) as a LightningModule: φ on N³ voxels, one ADMM
-iteration per training step (numerics in ``deepcurrents.geometry.grid_currents``), stopped on its
+iteration per training step (numerics in ``deepcurrents.baselines.grid_solver``), stopped on its
 residuals. It goes through the same ``train.py``, logging, checkpoints and meshing as the network.
 """
 
@@ -19,12 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from deepcurrents.errors import ConfigError, NonFiniteLossError
-from deepcurrents.eval.meshing import extract_surface, mesh_method
-from deepcurrents.eval.metrics import boundary_error, mass_estimate, mass_to_area
-from deepcurrents.eval.plots import plot_mesh
-from deepcurrents.geometry import biot_savart
-from deepcurrents.geometry.grid_currents import (
+from deepcurrents.baselines.grid_solver import (
     ADMMReport,
     ADMMState,
     GridProblem,
@@ -34,6 +29,11 @@ from deepcurrents.geometry.grid_currents import (
     grid_spacing,
     grid_vertices,
 )
+from deepcurrents.errors import ConfigError, NonFiniteLossError
+from deepcurrents.eval.meshing import extract_surface, mesh_method
+from deepcurrents.eval.metrics import boundary_error, mass_estimate, mass_to_area
+from deepcurrents.eval.plots import plot_mesh
+from deepcurrents.geometry import biot_savart
 from deepcurrents.models.base import CHECKPOINT_KEY, network_kwargs
 from deepcurrents.nn import NeuralCurrent
 

@@ -43,7 +43,7 @@ def collect_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
 def write_multirun_table(sweep_dir: str | Path, objective: str | None = None) -> list[dict[str, Any]]:
     """Writes ``table.md``/``table.csv`` of a sweep's jobs (rows named by their distinct overrides, the
     objective's column first when given). → the rows."""
-    from deepcurrents.suites import write_table
+    from deepcurrents.experiments.tables import write_table
 
     jobs = collect_jobs(sweep_dir)
     if not jobs:

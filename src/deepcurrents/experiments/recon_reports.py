@@ -1,4 +1,4 @@
-"""Reports of the reconstruction suites (``deepcurrents.suites``): the paper's Table 1 and the hand
+"""Reports of the reconstruction suites (``deepcurrents.experiments.tables``): the paper's Table 1 and the hand
 ablation of Fig. 7. Each takes the suite directory and the members' results and writes md + csv + png."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from deepcurrents.suites import write_table  # noqa: E402
+from deepcurrents.experiments.tables import write_table  # noqa: E402
 
 # Paper Table 1 (UCD, meshes in [-0.5, 0.5]^3, FAUST parts, 1e4 steps on an RTX 3090)
 PAPER_TABLE1 = {

@@ -1,0 +1,138 @@
+"""Metrics of any checkpoint, optionally against a target surface:
+``python -m deepcurrents.evaluate ckpt_path=…/last.ckpt [target=path/to/mesh.ply] [mesh=path/to/own.ply]``.
+
+Writes ``metrics.json`` (in a folder named after the checkpoint beside it, or ``out_dir=``):
+
+- ``loss`` = E|ω| over the domain (Monte Carlo, ``mass_samples``) and the extraction-free area bound
+  ``mass_area`` (``mass_length`` in 2D) with its standard error;
+- 3D: ``mesh_area``, ``mesh_faces``, ``boundary_error`` of the extracted surface (or of ``mesh=``);
+- with ``target=``: ``ucd`` = E_{y ~ U(target)} dist(y, mesh) (the paper's UCD, ``samples`` uniform points),
+  ``ucd_reverse`` (mesh → target) and ``chamfer`` (their mean), in the meshes' units.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import hydra
+import numpy as np
+import trimesh
+from omegaconf import MISSING, DictConfig
+
+from deepcurrents.cli.common import mesh_settings, output_dir, positive_int, register_app, run_app
+from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
+from deepcurrents.eval.metrics import (
+    boundary_error,
+    curve_length,
+    mass_estimate,
+    mass_to_area,
+    unidirectional_chamfer,
+)
+from deepcurrents.models.loading import load_module, resolve_device, viewable_current
+
+log = logging.getLogger("deepcurrents.evaluate")
+
+
+@dataclass
+class EvaluateConfig:
+    ckpt_path: str = MISSING
+    target: str | None = None  # a triangle mesh (.ply, .obj, .off, …) to measure the UCD against
+    mesh: str | None = None  # measure this mesh instead of extracting one from the checkpoint
+    out_dir: str | None = None
+    device: str = "auto"
+    shape: int | None = None  # families: which training shape (default 0)
+    resolution: int | None = None  # marching cubes (default: the run's evaluation.mesh.resolution)
+    samples: int = 100_000  # uniform samples of each surface for the Chamfer distances
+    mass_samples: int | None = None  # None: the run's evaluation.mass_samples (2^20 by default)
+    seed: int | None = None  # None: the run's evaluation.seed
+
+
+register_app("evaluate", EvaluateConfig, __doc__)
+
+
+def read_mesh(path: str, what: str) -> trimesh.Trimesh:
+    """A triangle mesh from a file, or UserInputError naming the setting and the problem."""
+    p = Path(path).expanduser()
+    if not p.is_file():
+        raise UserInputError(f"{what}='{path}' does not exist or is not a file.")
+    try:
+        mesh = trimesh.load(p, force="mesh", process=False)
+    except Exception as err:  # trimesh raises many kinds for unreadable files
+        raise UserInputError(f"{what}='{path}' is not a readable mesh file ({type(err).__name__}).") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise UserInputError(f"{what}='{path}' holds no triangles.")
+    if not np.isfinite(mesh.vertices).all():
+        raise UserInputError(f"{what}='{path}' has NaN or infinite vertex coordinates.")
+    return mesh
+
+
+def evaluate_checkpoint(cfg: DictConfig) -> dict:
+    """The app's body. → the metrics written to metrics.json."""
+    samples = positive_int("samples", cfg.samples)
+    if cfg.mass_samples is not None:
+        positive_int("mass_samples", cfg.mass_samples)
+    if cfg.resolution is not None:
+        positive_int("resolution", cfg.resolution, 8)
+    target = read_mesh(cfg.target, "target") if cfg.target else None
+    given = read_mesh(cfg.mesh, "mesh") if cfg.mesh else None
+    device = resolve_device(cfg.device)
+    module = load_module(cfg.ckpt_path, map_location=device)
+    current = viewable_current(module, cfg.ckpt_path, cfg.shape)
+    out = output_dir(cfg.ckpt_path, cfg.out_dir)
+
+    # unset sizes and seed from the run's own evaluation settings, so `loss` matches its metrics.json
+    evaluation = getattr(module, "evaluation", None) or (module.run_config or {}).get("evaluation") or {}
+    seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
+    mass_samples = int(cfg.mass_samples or evaluation.get("mass_samples", 1 << 20))
+    mass, stderr = mass_estimate(current, mass_samples, seed=seed)
+    scale = mass_to_area(1.0, current.dim, current.alpha_scale)
+    name = "area" if current.dim == 3 else "length"
+    metrics: dict = {
+        "ckpt_path": str(cfg.ckpt_path),
+        "steps": int(getattr(module, "loaded_step", 0)),
+        "loss": mass,
+        f"mass_{name}": mass * scale,
+        f"mass_{name}_stderr": stderr * scale,
+    }
+    if current.dim == 2:
+        if target is not None or given is not None:
+            raise ConfigError("target= and mesh= are for 3D currents; this checkpoint's current is 2D.")
+        metrics["curve_length"] = curve_length(extract_curve_2d(current))
+    else:
+        if given is not None:
+            mesh = given
+            metrics["mesh"] = str(cfg.mesh)
+        else:
+            settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution)
+            mesh = extract_surface(current, **settings).mesh
+            mesh.export(out / "mesh.ply")
+            metrics["mesh"] = str(out / "mesh.ply")
+        loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
+        metrics["mesh_area"] = float(mesh.area)
+        metrics["mesh_faces"] = int(len(mesh.faces))
+        metrics["boundary_error"] = boundary_error(mesh, loops) if len(mesh.faces) else None
+        if target is not None:
+            metrics["target"] = str(cfg.target)
+            if len(mesh.faces) == 0:
+                log.warning("The extracted mesh is empty: its distances to the target are undefined.")
+                metrics.update(ucd=None, ucd_reverse=None, chamfer=None)
+            else:
+                ucd = unidirectional_chamfer(target, mesh, samples, seed)
+                reverse = unidirectional_chamfer(mesh, target, samples, seed)
+                metrics.update(ucd=ucd, ucd_reverse=reverse, chamfer=0.5 * (ucd + reverse))
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return metrics
+
+
+@hydra.main(version_base="1.3", config_path=None, config_name="evaluate")
+def main(cfg: DictConfig) -> None:
+    metrics = run_app(evaluate_checkpoint, cfg)
+    print(json.dumps(metrics, indent=2))
+
+
+if __name__ == "__main__":
+    main()

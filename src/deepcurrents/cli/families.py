@@ -1,0 +1,72 @@
+"""Plumbing shared by the family apps (``interpolate``, ``generate``): loading an autodecoder checkpoint,
+meshing one member and writing the picture grid with its JSON report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig
+
+from deepcurrents.cli.common import output_dir, positive_int
+from deepcurrents.eval.mesh_grid import plot_mesh_grid
+from deepcurrents.eval.metrics import boundary_error
+from deepcurrents.geometry.curves import write_curve_file
+from deepcurrents.models.autodecoder import AutodecoderModule
+from deepcurrents.models.loading import load_module, resolve_device
+
+
+def app_out_dir(cfg: DictConfig, name: str) -> Path:
+    """``cfg.out_dir``, else ``<folder named after the checkpoint>/<name>`` beside it (as the other apps)."""
+    path = Path(cfg.out_dir) if cfg.out_dir else output_dir(cfg.ckpt_path, None) / name
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def load_for_app(cfg: DictConfig) -> AutodecoderModule:
+    """The family model of ``cfg.ckpt_path`` on ``cfg.device``, with ``cfg.resolution`` applied."""
+    module = load_module(cfg.ckpt_path, map_location=resolve_device(str(cfg.device)), expected=AutodecoderModule)
+    if cfg.get("resolution") is not None:
+        resolution = positive_int("resolution", cfg.resolution, 8)
+        module.evaluation["mesh"] = {**dict(module.evaluation.get("mesh", {})), "resolution": resolution}
+    return module
+
+
+def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.ndarray], shapes: list[int],
+                     out_dir: Path, stem: str) -> dict[str, Any]:
+    """Meshes the member (z, Γ), writes ``<stem>.ply`` and ``<stem>_boundary.obj``. → its record."""
+    result = module.mesh_member(module.member(z, loops), module.meshing_bounds(shapes, loops))
+    mesh = result.mesh
+    mesh.export(out_dir / f"{stem}.ply")
+    write_curve_file(out_dir / f"{stem}_boundary.obj", loops)
+    empty = len(mesh.faces) == 0
+    return {
+        "mesh": f"{stem}.ply", "boundary": f"{stem}_boundary.obj",
+        "boundary_error": None if empty else boundary_error(mesh, loops),
+        "mesh_faces": int(len(mesh.faces)), "mesh_area": float(mesh.area),
+        "boundary_loops_closed": result.zipped_loops, "_mesh": mesh, "_loops": loops,
+    }
+
+
+def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
+    errors = [r["boundary_error"] for r in records if r["boundary_error"] is not None]
+    return {
+        "boundary_error_mean": float(np.mean(errors)) if errors else None,
+        "boundary_error_max": float(np.max(errors)) if errors else None,
+        "empty_meshes": sum(r["boundary_error"] is None for r in records),
+    }
+
+
+def write_outputs(out_dir: Path, records: list[dict[str, Any]], info: dict[str, Any], ncols: int,
+                  figure: str, json_name: str) -> dict[str, Any]:
+    """The picture grid and the JSON report (records without their in-memory meshes)."""
+    titles = [r["title"] for r in records]
+    plot_mesh_grid([r["_mesh"] for r in records], [r["_loops"] for r in records], out_dir / figure,
+                   titles=titles, ncols=ncols, size=5.0 if len(records) == 1 else 3.0)
+    report = {**info, **summarise(records),
+              "items": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records]}
+    (out_dir / json_name).write_text(json.dumps(report, indent=2))
+    return report
