@@ -22,7 +22,7 @@ import numpy as np
 import torch
 import trimesh
 
-from deepcurrents.data.recon import read_mesh
+from deepcurrents.data.recon import read_target_mesh
 from deepcurrents.data.targets import MeshTarget, distance_to_loops
 from deepcurrents.losses import current_loss, surface_loss
 from deepcurrents.nn import NeuralCurrent
@@ -52,7 +52,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.manual_seed(0)
     if Path(args.mesh).is_file():
-        verts, faces = read_mesh(args.mesh)
+        verts, faces = read_target_mesh(args.mesh)
         name = args.mesh
     else:  # no dataset: a spherical cap of similar size
         sphere = trimesh.creation.icosphere(4, radius=0.5)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from pathlib import Path
 from typing import Any
 
@@ -60,8 +59,6 @@ class ClosestPointModule(DeepCurrentsModule):
         self.time_budget_s = float(time_budget_s) if time_budget_s is not None else None
         self.wall_time_from = wall_time_from
         TargetGeometry.register(self, target)
-        self.train_seconds = 0.0
-        self._start: float | None = None
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Predicted closest points. (N, 3) → (N, 3)."""
@@ -76,7 +73,7 @@ class ClosestPointModule(DeepCurrentsModule):
             # the budget is the stop: a step cap from a preset (preset=cpu's 1000) would hand the baseline
             # less time than the run it is compared with
             self.trainer.fit_loop.epoch_loop.max_steps = -1
-        self._start = time.perf_counter()
+        super().on_train_start()
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         loss = ((self(batch["x"]) - batch["closest"]) ** 2).sum(-1).mean()
@@ -85,22 +82,8 @@ class ClosestPointModule(DeepCurrentsModule):
         return loss
 
     def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
-        elapsed = time.perf_counter() - self._start if self._start is not None else 0.0
-        if self.time_budget_s is not None and self.train_seconds + elapsed >= self.time_budget_s:
+        if self.time_budget_s is not None and self.elapsed_train_seconds() >= self.time_budget_s:
             self.trainer.should_stop = True
-
-    def on_train_end(self) -> None:
-        if self._start is not None:
-            self.train_seconds += time.perf_counter() - self._start
-            self._start = None
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        super().on_save_checkpoint(checkpoint)
-        elapsed = time.perf_counter() - self._start if self._start else 0.0
-        checkpoint["train_seconds"] = self.train_seconds + elapsed
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
 
     @torch.no_grad()
     def predict_points(self, x: np.ndarray, chunk: int = 1 << 15) -> np.ndarray:
@@ -140,8 +123,7 @@ class ClosestPointModule(DeepCurrentsModule):
             reverse = float(cKDTree(y).query(pred)[0].mean())
         ucd = float(np.linalg.norm(pred_y - y, axis=1).mean())
         metrics = {"ucd": ucd, "ucd_reverse": reverse, "chamfer": 0.5 * (ucd + reverse),
-                   "loss": float(((pred_y - y) ** 2).sum(1).mean()), "steps": int(self.global_step),
-                   "train_seconds": round(self.train_seconds, 3), "target": self.target_source}
+                   "loss": float(((pred_y - y) ** 2).sum(1).mean()), **self.run_metrics(),
+                   "target": self.target_source}
         trimesh.PointCloud(TargetGeometry.to_input(self, pred)).export(out_dir / "points.ply")
-        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        return metrics
+        return self.write_metrics(out_dir, metrics)

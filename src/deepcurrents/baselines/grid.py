@@ -5,7 +5,6 @@ residuals. It goes through the same ``train.py``, logging, checkpoints and meshi
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -13,7 +12,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import lightning as L
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -29,12 +27,11 @@ from deepcurrents.baselines.grid_solver import (
     grid_spacing,
     grid_vertices,
 )
-from deepcurrents.errors import ConfigError, NonFiniteLossError
+from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
-from deepcurrents.eval.metrics import boundary_error, mass_estimate, mass_to_area
-from deepcurrents.eval.plots import plot_mesh
+from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import biot_savart
-from deepcurrents.models.base import CHECKPOINT_KEY, network_kwargs
+from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn import NeuralCurrent
 
 log = logging.getLogger(__name__)
@@ -168,7 +165,7 @@ def matched_resolution(net: dict[str, Any], rff: dict[str, Any] | None, loops: l
     return max(4, round(count ** (1.0 / 3.0))), count
 
 
-class GridModule(L.LightningModule):
+class GridModule(DeepCurrentsModule):
     """Minimal currents on a voxel grid (Wang & Chern 2021; paper Fig. 4), solved by ADMM.
 
     Args:
@@ -187,7 +184,7 @@ class GridModule(L.LightningModule):
 
     def __init__(self, boundary: dict, grid: dict, admm: dict, net: dict, optim: dict | None = None,
                  rff: dict | None = None, evaluation: dict | None = None):
-        super().__init__()
+        super().__init__(optim=None)  # ADMM has no learning rate: `optim` is accepted, unused
         self.save_hyperparameters()
         self.automatic_optimization = False
         self.evaluation = dict(evaluation or {})
@@ -204,8 +201,7 @@ class GridModule(L.LightningModule):
         self.matched_parameters = None
         if resolution is None:
             resolution, self.matched_parameters = matched_resolution(net, rff, loops)
-        if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 4:
-            raise ConfigError(f"model.grid.resolution={resolution!r} must be an integer ≥ 4 (or null).")
+        positive_int("model.grid.resolution", resolution, 4)
         self.admm_settings = {"rho": float(admm.get("rho", 0.5)), "relaxation": float(admm.get("relaxation", 1.6)),
                               "balance": float(admm.get("balance", 10.0)), "tol": float(admm.get("tol", 1e-3)),
                               "min_iterations": int(admm.get("min_iterations", 10))}
@@ -219,12 +215,7 @@ class GridModule(L.LightningModule):
         self.current = GridCurrent(resolution, loops, alpha_scale, DTYPES[dtype])
         self._problem: GridProblem | None = None
         self.setup_seconds = 0.0
-        self.train_seconds = 0.0
-        self._train_start: float | None = None
         self.converged = False
-        self.run_config: dict | None = None
-
-    mesh_method = "phase"  # what evaluation.mesh.method=auto means for this model kind
 
     @property
     def dim(self) -> int:
@@ -258,11 +249,7 @@ class GridModule(L.LightningModule):
         opt = self.optimizers()
         opt.step()
         report: ADMMReport = opt.optimizer.last
-        if not math.isfinite(report.mass):
-            raise NonFiniteLossError(
-                f"The grid solver's mass became {report.mass} at iteration {self.global_step}; it stopped. "
-                "The last good checkpoint is kept (try a smaller model.admm.rho)."
-            )
+        self.check_finite(report.mass, hint="try a smaller model.admm.rho")
         s = self.admm_settings
         if self.global_step >= s["min_iterations"] and max(report.primal, report.dual) < s["tol"]:
             self.converged = True
@@ -276,23 +263,7 @@ class GridModule(L.LightningModule):
 
     def on_train_start(self) -> None:
         self.problem()  # α before the clock starts: its time is reported as setup_seconds
-        self._train_start = time.perf_counter()
-
-    def on_train_end(self) -> None:
-        if self._train_start is not None:
-            self.train_seconds += time.perf_counter() - self._train_start
-            self._train_start = None
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint[CHECKPOINT_KEY] = {
-            "module": f"{type(self).__module__}.{type(self).__qualname__}",
-            "config": self.run_config,
-        }
-        elapsed = time.perf_counter() - self._train_start if self._train_start else 0.0
-        checkpoint["train_seconds"] = self.train_seconds + elapsed
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
+        super().on_train_start()
 
     @torch.no_grad()
     def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
@@ -318,9 +289,8 @@ class GridModule(L.LightningModule):
             "resolution": self.resolution,
             "parameters": int(phi.numel()),
             "iterations": int(opt_state["iteration"]) if opt_state else 0,
-            "steps": int(self.global_step),
+            **self.run_metrics(),  # train_seconds: the ADMM iterations
             "converged": bool(self.converged),
-            "train_seconds": round(self.train_seconds, 3),  # the ADMM iterations
             "setup_seconds": round(self.setup_seconds, 3),  # sampling α at the corners
             "seconds": round(self.train_seconds + self.setup_seconds, 3),
         }
@@ -330,21 +300,14 @@ class GridModule(L.LightningModule):
         if last is not None:
             metrics["primal_residual"], metrics["dual_residual"] = last.primal, last.dual
         result = extract_surface(self.current, **mesh_method(self.evaluation.get("mesh", {}), self.mesh_method))
-        mesh = result.mesh
         loops = [lp.cpu().double().numpy() for lp in self.current.loops]
-        metrics["mesh_area"] = float(mesh.area)
-        metrics["mesh_faces"] = int(len(mesh.faces))
-        metrics["boundary_error"] = boundary_error(mesh, loops) if len(mesh.faces) else None
-        metrics["mesh_level"] = result.level
-        metrics["boundary_loops_closed"] = result.zipped_loops
-        mesh.export(out_dir / "mesh.ply")
         name = self.hparams.boundary.get("name", "")
-        plot_mesh(mesh, loops, out_dir / "mesh.png", title=f"{name} grid {self.resolution}³: area {mesh.area:.4f}")
+        metrics.update(self.write_mesh(out_dir, result, loops,
+                                       f"{name} grid {self.resolution}³: area {result.mesh.area:.4f}"))
         np.savez(out_dir / "field.npz", phi=phi.cpu().numpy(), omega_norm=omega.norm(dim=0).float().cpu().numpy(),
                  resolution=self.resolution, alpha_scale=self.current.alpha_scale,
                  cell_centers_axis=(-1.0 + grid_spacing(self.resolution) * (np.arange(self.resolution) + 0.5)))
-        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        return metrics
+        return self.write_metrics(out_dir, metrics)
 
     def _optimizer_state(self) -> dict | None:
         if self._trainer is None or not self.trainer.optimizers:

@@ -17,7 +17,7 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
-from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
+from deepcurrents.errors import NonFiniteLossError, UserInputError
 from deepcurrents.eval.meshing import mesh_method
 
 log = logging.getLogger("deepcurrents")
@@ -43,14 +43,6 @@ def output_dir(ckpt_path: str, out_dir: str | None) -> Path:
     path = Path(out_dir) if out_dir else Path(ckpt_path).expanduser().with_suffix("")
     path.mkdir(parents=True, exist_ok=True)
     return path
-
-
-def positive_int(name: str, value: Any, minimum: int = 1) -> int:
-    """``value`` as an int ≥ ``minimum`` or ConfigError naming the setting."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        what = "a positive integer" if minimum == 1 else f"an integer ≥ {minimum}"
-        raise ConfigError(f"{name}={value!r} must be {what}.")
-    return value
 
 
 def run_app(main: Callable[[Any], Any], cfg: Any) -> Any:

@@ -15,23 +15,21 @@ from __future__ import annotations
 import json
 import logging
 from dataclasses import dataclass
-from pathlib import Path
 
 import hydra
-import numpy as np
-import trimesh
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, positive_int, register_app, run_app
-from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
+from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import (
-    boundary_error,
     curve_length,
     mass_estimate,
     mass_to_area,
+    mesh_summary,
     unidirectional_chamfer,
 )
+from deepcurrents.geometry.meshes import read_mesh
 from deepcurrents.models.loading import load_module, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.evaluate")
@@ -52,22 +50,6 @@ class EvaluateConfig:
 
 
 register_app("evaluate", EvaluateConfig, __doc__)
-
-
-def read_mesh(path: str, what: str) -> trimesh.Trimesh:
-    """A triangle mesh from a file, or UserInputError naming the setting and the problem."""
-    p = Path(path).expanduser()
-    if not p.is_file():
-        raise UserInputError(f"{what}='{path}' does not exist or is not a file.")
-    try:
-        mesh = trimesh.load(p, force="mesh", process=False)
-    except Exception as err:  # trimesh raises many kinds for unreadable files
-        raise UserInputError(f"{what}='{path}' is not a readable mesh file ({type(err).__name__}).") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise UserInputError(f"{what}='{path}' holds no triangles.")
-    if not np.isfinite(mesh.vertices).all():
-        raise UserInputError(f"{what}='{path}' has NaN or infinite vertex coordinates.")
-    return mesh
 
 
 def evaluate_checkpoint(cfg: DictConfig) -> dict:
@@ -112,9 +94,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
             mesh.export(out / "mesh.ply")
             metrics["mesh"] = str(out / "mesh.ply")
         loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
-        metrics["mesh_area"] = float(mesh.area)
-        metrics["mesh_faces"] = int(len(mesh.faces))
-        metrics["boundary_error"] = boundary_error(mesh, loops) if len(mesh.faces) else None
+        metrics.update(mesh_summary(mesh, loops))
         if target is not None:
             metrics["target"] = str(cfg.target)
             if len(mesh.faces) == 0:

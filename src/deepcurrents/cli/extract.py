@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import hydra
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, positive_int, register_app, run_app
-from deepcurrents.errors import ConfigError
+from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
+from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_surface
-from deepcurrents.eval.metrics import boundary_error
+from deepcurrents.eval.metrics import mesh_summary
 from deepcurrents.eval.render import Camera, render_mesh
 from deepcurrents.models.loading import load_module, resolve_device, viewable_current
 
@@ -78,15 +78,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     path = out / f"{stem}.{fmt}"
     mesh.export(path)
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
-    summary = {
-        "mesh": str(path),
-        "resolution": int(cfg.resolution),
-        "mesh_area": float(mesh.area),
-        "mesh_faces": int(len(mesh.faces)),
-        "boundary_error": boundary_error(mesh, loops) if len(mesh.faces) else None,
-        "boundary_loops_closed": result.zipped_loops,
-        "mesh_level": result.level,
-    }
+    summary = {"mesh": str(path), "resolution": int(cfg.resolution), **mesh_summary(result, loops)}
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))
     if cfg.picture:
         render_mesh(mesh, loops, Camera(width=480, height=480), out / f"{stem}.png",

@@ -11,9 +11,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
-from deepcurrents.cli.common import output_dir, positive_int
+from deepcurrents.cli.common import output_dir
+from deepcurrents.errors import positive_int
 from deepcurrents.eval.mesh_grid import plot_mesh_grid
-from deepcurrents.eval.metrics import boundary_error
+from deepcurrents.eval.metrics import mesh_summary
 from deepcurrents.geometry.curves import write_curve_file
 from deepcurrents.models.autodecoder import AutodecoderModule
 from deepcurrents.models.loading import load_module, resolve_device
@@ -42,13 +43,9 @@ def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.
     mesh = result.mesh
     mesh.export(out_dir / f"{stem}.ply")
     write_curve_file(out_dir / f"{stem}_boundary.obj", loops)
-    empty = len(mesh.faces) == 0
-    return {
-        "mesh": f"{stem}.ply", "boundary": f"{stem}_boundary.obj",
-        "boundary_error": None if empty else boundary_error(mesh, loops),
-        "mesh_faces": int(len(mesh.faces)), "mesh_area": float(mesh.area),
-        "boundary_loops_closed": result.zipped_loops, "_mesh": mesh, "_loops": loops,
-    }
+    summary = mesh_summary(result, loops)
+    summary.pop("mesh_level")
+    return {"mesh": f"{stem}.ply", "boundary": f"{stem}_boundary.obj", **summary, "_mesh": mesh, "_loops": loops}
 
 
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:

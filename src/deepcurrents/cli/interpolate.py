@@ -25,9 +25,9 @@ import hydra
 import numpy as np
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import positive_int, register_app, run_app
+from deepcurrents.cli.common import register_app, run_app
 from deepcurrents.cli.families import app_out_dir, load_for_app, mesh_and_measure, write_outputs
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.geometry.correspondence import interpolate_loops
 
 log = logging.getLogger("deepcurrents")

@@ -21,8 +21,8 @@ import hydra
 import numpy as np
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, positive_int, register_app, run_app
-from deepcurrents.errors import ConfigError
+from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
+from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.render import (
     Camera,

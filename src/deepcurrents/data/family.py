@@ -34,9 +34,10 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from deepcurrents.data.ambient import stream_seed
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
 from deepcurrents.data.targets import boundary_edges, mesh_boundary_loops, reconstruction_sample
-from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
+from deepcurrents.geometry.meshes import read_mesh
 
 log = logging.getLogger(__name__)
 
@@ -94,19 +95,11 @@ def family_files(path: str | Path | Sequence[str], max_meshes: int | None = None
     return files
 
 
-def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
+def read_family_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float64 and faces (F, 3) int64 of a triangle mesh file, in the file's order."""
-    try:
-        mesh = trimesh.load(path, process=False, force="mesh")
-    except Exception as err:  # trimesh raises many kinds for unreadable files
-        raise FamilyError(f"Family mesh '{path}' could not be read: {err}.") from err
-    if len(mesh.faces) == 0:
-        raise FamilyError(f"Family mesh '{path}' has no triangles.")
+    mesh = read_mesh(path, "Family mesh", FamilyError)
     mesh.remove_unreferenced_vertices()  # keeps the order of the others; stray vertices cannot be skinned
-    v, f = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
-    if not np.isfinite(v).all():
-        raise FamilyError(f"Family mesh '{path}' has NaN or infinite vertex coordinates.")
-    return v, f
+    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
 
 
 def loop_indices(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
@@ -126,7 +119,7 @@ def load_family(files: Sequence[Path], bound: float = 0.98) -> list[FamilyMesh]:
     """Reads, checks and matches the meshes of a family (see the module docstring). Raises FamilyError."""
     meshes: list[FamilyMesh] = []
     for path in files:
-        v, f = read_mesh(path)
+        v, f = read_family_mesh(path)
         loops = loop_indices(v, f)
         if not loops:
             raise FamilyError(f"Family mesh '{path}' is closed: it has no boundary loop.")
@@ -251,8 +244,7 @@ class FamilyDataModule(L.LightningDataModule):
         super().__init__()
         for key, value in (("meshes_per_batch", meshes_per_batch), ("num_samples", num_samples),
                            ("num_surface_samples", num_surface_samples)):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ConfigError(f"data.{key}={value!r} must be a positive integer.")
+            positive_int(f"data.{key}", value)
         if num_workers < 0:
             raise ConfigError(f"data.num_workers={num_workers} must be zero or positive.")
         if len(scale_range) != 2:

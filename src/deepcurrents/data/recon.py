@@ -20,8 +20,9 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from deepcurrents.data.ambient import stream_seed
 from deepcurrents.data.human_parts import dataset_path
 from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_point_sample, mesh_boundary_loops
-from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry import Boundary, load_boundary, validate_loops, validate_points
+from deepcurrents.geometry.meshes import read_mesh
 from deepcurrents.geometry.polyline import project_to_segments
 
 log = logging.getLogger(__name__)
@@ -33,23 +34,14 @@ class TargetError(UserInputError):
 
 # ------------------------------------------------------------------------------------------ reading targets
 
-def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A triangle mesh from a file trimesh reads, cleaned for reconstruction: largest connected component
     (with a warning when there are several), no unreferenced vertices; TargetError with one sentence if
     it is missing, unreadable, empty, closed, or has non-manifold edges. → (vertices (V, 3), faces (F, 3))."""
     path = Path(path)
-    if not path.is_file():
-        raise TargetError(f"Mesh file '{path}' does not exist.")
-    try:
-        mesh = trimesh.load(path, process=False, force="mesh")
-    except Exception as err:  # trimesh raises many types for malformed files
-        raise TargetError(f"Mesh file '{path}' could not be read as a triangle mesh ({err}).") from err
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise TargetError(f"Mesh file '{path}' contains no triangles.")
+    mesh = read_mesh(path, "Mesh file", TargetError)
     verts = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
-    if not np.isfinite(verts).all():
-        raise TargetError(f"Mesh file '{path}' has NaN or infinite vertex coordinates.")
     # drop degenerate (repeated-vertex) triangles, then keep the largest component
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
     from deepcurrents.data.human_parts import cut_part, largest_component
@@ -203,8 +195,7 @@ class ReconstructionDataModule(L.LightningDataModule):
     ):
         super().__init__()
         for key, value in (("num_samples", num_samples), ("num_surface_samples", num_surface_samples)):
-            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-                raise ConfigError(f"data.{key}={value!r} must be a positive integer.")
+            positive_int(f"data.{key}", value)
         if not boundary_sigma > 0:
             raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
         if num_workers < 0:
@@ -232,7 +223,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         self.source_file = str(mesh or points)
 
         if mesh is not None:
-            verts, faces = read_mesh(mesh)
+            verts, faces = read_target_mesh(mesh)
             self.scale, self.offset = normalisation(verts, normalize)
             verts = (verts - self.offset) / self.scale
             loops = validate_loops(mesh_boundary_loops(verts, faces), f"of mesh '{mesh}'")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import igl
 import numpy as np
@@ -64,6 +65,22 @@ def boundary_error(mesh: trimesh.Trimesh, loops: list[np.ndarray], spacing: floa
         return None
     b0, b1, _ = closed_loop_segments(loops)
     return polyline_hausdorff(a0, a1, b0, b1, spacing)
+
+
+def mesh_summary(result: Any, loops: list[np.ndarray]) -> dict[str, Any]:
+    """What every report says of an extracted surface: ``mesh_area``, ``mesh_faces``, ``boundary_error``
+    (None for an empty mesh) and, for a ``MeshingResult``, ``mesh_level`` and ``boundary_loops_closed``.
+    ``result``: a MeshingResult or a trimesh.Trimesh; ``loops``: Γ as (M_i, 3) arrays."""
+    mesh = getattr(result, "mesh", result)
+    summary: dict[str, Any] = {
+        "mesh_area": float(mesh.area),
+        "mesh_faces": int(len(mesh.faces)),
+        "boundary_error": boundary_error(mesh, loops) if len(mesh.faces) else None,
+    }
+    if hasattr(result, "mesh"):
+        summary["mesh_level"] = result.level
+        summary["boundary_loops_closed"] = result.zipped_loops
+    return summary
 
 
 def curve_length(curves: list[np.ndarray]) -> float:

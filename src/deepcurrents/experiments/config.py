@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from omegaconf import DictConfig, OmegaConf
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES
 
 
@@ -16,8 +16,7 @@ def _positive_int(cfg: DictConfig, key: str, minimum: int = 1) -> None:
         value = value[part]
     if value is None:
         return
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ConfigError(f"{key}={value!r} must be an integer ≥ {minimum}.")
+    positive_int(key, value, minimum)
 
 
 def _nonnegative(cfg: DictConfig, key: str) -> None:

@@ -13,9 +13,7 @@ rebuild, mesh, interpolate and edit every training shape (``deepcurrents.interpo
 from __future__ import annotations
 
 import csv
-import json
 import logging
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -26,7 +24,7 @@ import torch
 from deepcurrents.errors import ConfigError, UserInputError
 from deepcurrents.eval.mesh_grid import plot_mesh_grid
 from deepcurrents.eval.meshing import extract_surface, mesh_method
-from deepcurrents.eval.metrics import boundary_error, unidirectional_chamfer
+from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
 from deepcurrents.losses import current_loss, surface_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
@@ -106,8 +104,6 @@ class AutodecoderModule(DeepCurrentsModule):
                     self.train_loops[i, b, : len(lp)] = torch.as_tensor(np.asarray(lp), dtype=torch.float32)
         if train_bounds is not None:
             self.train_bounds.copy_(torch.as_tensor(np.asarray(train_bounds), dtype=torch.float32))
-        self._train_start: float | None = None
-        self.train_seconds = 0.0
 
     # ----------------------------------------------------------------------------------------- shapes
     @property
@@ -185,18 +181,8 @@ class AutodecoderModule(DeepCurrentsModule):
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=size)
         return losses["loss"]
 
-    def on_train_start(self) -> None:
-        self._train_start = time.perf_counter()
-
-    def on_train_end(self) -> None:
-        if self._train_start is not None:
-            self.train_seconds += time.perf_counter() - self._train_start
-            self._train_start = None
-
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         super().on_save_checkpoint(checkpoint)
-        elapsed = time.perf_counter() - self._train_start if self._train_start else 0.0
-        checkpoint["train_seconds"] = self.train_seconds + elapsed
         checkpoint[FAMILY_KEY] = {"loops": self.train_loops, "mask": self.train_loop_mask, "bounds": self.train_bounds}
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
@@ -211,7 +197,7 @@ class AutodecoderModule(DeepCurrentsModule):
                     f"The checkpoint was trained on another family: its {what} differ from the "
                     f"configured data's{detail}; point data.path at the checkpoint's meshes or start afresh."
                 )
-        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
+        super().on_load_checkpoint(checkpoint)
         if FAMILY_KEY in checkpoint:
             family = checkpoint[FAMILY_KEY]
             self.train_loops = family["loops"].cpu().float()
@@ -252,13 +238,14 @@ class AutodecoderModule(DeepCurrentsModule):
             mesh.export(out_dir / "meshes" / f"{i:03d}_{stem}.ply")
             empty = len(mesh.faces) == 0
             target = meshes[i].trimesh()
+            summary = mesh_summary(result, loops)
             rows.append({
                 "index": i, "name": names[i],
                 "ucd": None if empty else unidirectional_chamfer(target, mesh, samples, seed),
                 "ucd_reverse": None if empty else unidirectional_chamfer(mesh, target, samples, seed),
-                "boundary_error": None if empty else boundary_error(mesh, loops),
-                "mesh_faces": int(len(mesh.faces)), "mesh_area": float(mesh.area),
-                "target_area": float(target.area), "boundary_loops_closed": result.zipped_loops,
+                "boundary_error": summary["boundary_error"], "mesh_faces": summary["mesh_faces"],
+                "mesh_area": summary["mesh_area"], "target_area": float(target.area),
+                "boundary_loops_closed": summary["boundary_loops_closed"],
             })
             learned.append((mesh, loops, f"{i}: {stem}"))
             log.info("shape %d (%s): ucd %s", i, names[i], rows[-1]["ucd"])
@@ -285,9 +272,7 @@ class AutodecoderModule(DeepCurrentsModule):
             "empty_meshes": sum(r["ucd"] is None for r in rows),
             "shapes_evaluated": count,
             "num_shapes": self.num_shapes,
-            "steps": int(self.global_step),
-            "train_seconds": round(self.train_seconds, 3),
+            **self.run_metrics(),
         }
-        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        return metrics
+        return self.write_metrics(out_dir, metrics)
 

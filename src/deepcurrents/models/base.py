@@ -1,15 +1,23 @@
-"""What every DeepCurrents LightningModule shares: Adam with the paper's step decay, NaN guard, and the
-run's configuration stored in each checkpoint (so apps can rebuild any model kind from a checkpoint)."""
+"""What every DeepCurrents LightningModule shares: Adam with the paper's step decay, the NaN guard, the
+training clock, the run's configuration stored in each checkpoint (so apps can rebuild any model kind from a
+checkpoint), and the files of a final evaluation (metrics.json, the mesh and its picture)."""
 
 from __future__ import annotations
 
+import json
 import math
+import time
+from pathlib import Path
 from typing import Any
 
 import lightning as L
+import numpy as np
 import torch
+import trimesh
 
-from deepcurrents.errors import ConfigError, NonFiniteLossError
+from deepcurrents.errors import ConfigError, NonFiniteLossError, positive_int
+from deepcurrents.eval.metrics import mesh_summary
+from deepcurrents.eval.plots import plot_mesh
 
 CHECKPOINT_KEY = "deepcurrents"
 
@@ -27,9 +35,7 @@ def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None) -> di
     kwargs.update(num_frequencies=rff.get("num_frequencies", 1024), sigma=rff.get("sigma", 2.0),
                   rff=bool(rff.get("enabled", True)), rff_seed=rff.get("seed"))
     for group, key in (("rff", "num_frequencies"), ("net", "width"), ("net", "depth")):
-        value = kwargs.get(key, 1)
-        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise ConfigError(f"model.{group}.{key}={value!r} must be a positive integer.")
+        positive_int(f"model.{group}.{key}", kwargs.get(key, 1))
     if not float(kwargs["sigma"]) > 0:
         raise ConfigError(f"model.rff.sigma={kwargs['sigma']} must be positive.")
     if "alpha_scale" in kwargs and not float(kwargs["alpha_scale"]) > 0:
@@ -38,18 +44,29 @@ def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None) -> di
 
 
 class DeepCurrentsModule(L.LightningModule):
-    """Base class. Subclasses define ``training_step`` (via ``compute_losses``) and ``final_evaluation``."""
+    """Base class of every model kind. Subclasses define ``training_step`` and ``final_evaluation``.
 
-    def __init__(self, optim: dict[str, Any]):
+    ``optim`` ({"lr", "step_size", "gamma"}: Adam with lr × gamma every step_size steps) may be None for
+    models that bring their own optimiser (the grid baseline's ADMM overrides ``configure_optimizers``).
+    Training time (``train_seconds``) counts only the fit loop, across resumes: it is carried by every
+    checkpoint and restored from it.
+    """
+
+    mesh_method = "phase"  # what evaluation.mesh.method=auto means for this model kind (eval.meshing.mesh_method)
+
+    def __init__(self, optim: dict[str, Any] | None):
         super().__init__()
-        lr, step_size, gamma = float(optim["lr"]), int(optim["step_size"]), float(optim["gamma"])
-        if not lr > 0:
-            raise ConfigError(f"model.optim.lr={lr} must be positive.")
-        if step_size <= 0:
-            raise ConfigError(f"model.optim.step_size={step_size} must be a positive number of steps.")
-        if not 0 < gamma <= 1:
-            raise ConfigError(f"model.optim.gamma={gamma} must be in (0, 1].")
+        if optim is not None:
+            lr, step_size, gamma = float(optim["lr"]), int(optim["step_size"]), float(optim["gamma"])
+            if not lr > 0:
+                raise ConfigError(f"model.optim.lr={lr} must be positive.")
+            if step_size <= 0:
+                raise ConfigError(f"model.optim.step_size={step_size} must be a positive number of steps.")
+            if not 0 < gamma <= 1:
+                raise ConfigError(f"model.optim.gamma={gamma} must be in (0, 1].")
         self.run_config: dict | None = None  # set by the entry point; saved in checkpoints
+        self.train_seconds = 0.0  # training time of the fit loops that ended (this run and those it resumed)
+        self._train_start: float | None = None
 
     def configure_optimizers(self):
         optim = self.hparams.optim
@@ -57,15 +74,59 @@ class DeepCurrentsModule(L.LightningModule):
         sched = torch.optim.lr_scheduler.StepLR(opt, step_size=int(optim["step_size"]), gamma=float(optim["gamma"]))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
-    def check_finite(self, loss: torch.Tensor) -> None:
-        if not math.isfinite(float(loss.detach())):
+    def check_finite(self, loss: torch.Tensor | float, hint: str = "try a lower model.optim.lr") -> None:
+        value = float(loss.detach()) if isinstance(loss, torch.Tensor) else float(loss)
+        if not math.isfinite(value):
             raise NonFiniteLossError(
-                f"The loss became {float(loss.detach())} at step {self.global_step}; training stopped. "
-                "The last good checkpoint is kept (try a lower model.optim.lr)."
+                f"The loss became {value} at step {self.global_step}; training stopped. "
+                f"The last good checkpoint is kept ({hint})."
             )
 
+    # ------------------------------------------------------------------------------- training clock
+    def elapsed_train_seconds(self) -> float:
+        """Training seconds so far, including the running fit loop."""
+        running = time.perf_counter() - self._train_start if self._train_start is not None else 0.0
+        return self.train_seconds + running
+
+    def on_train_start(self) -> None:
+        self._train_start = time.perf_counter()
+
+    def on_train_end(self) -> None:
+        self.train_seconds = self.elapsed_train_seconds()
+        self._train_start = None  # a checkpoint written after training must not count the time since
+
+    # ----------------------------------------------------------------------------------- checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint[CHECKPOINT_KEY] = {
             "module": f"{type(self).__module__}.{type(self).__qualname__}",
             "config": self.run_config,
         }
+        checkpoint["train_seconds"] = self.elapsed_train_seconds()
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
+
+    # ------------------------------------------------------------------------------ final evaluation
+    def run_metrics(self) -> dict[str, Any]:
+        """The bookkeeping every metrics.json starts with: steps and training seconds."""
+        return {"steps": int(self.global_step), "train_seconds": round(self.train_seconds, 3)}
+
+    @staticmethod
+    def write_metrics(out_dir: str | Path, metrics: dict[str, Any]) -> dict[str, Any]:
+        """``out_dir/metrics.json`` (flat JSON). → metrics."""
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        return metrics
+
+    @staticmethod
+    def write_mesh(out_dir: str | Path, result: Any, loops: list[np.ndarray], title: str,
+                   export: trimesh.Trimesh | None = None) -> dict[str, Any]:
+        """``mesh.ply`` and ``mesh.png`` of a meshing result (a ``MeshingResult`` or a mesh) with its
+        boundary ``loops``. ``export``: the mesh to write instead (e.g. in the input's coordinates).
+        → its summary (``eval.metrics.mesh_summary``)."""
+        out_dir = Path(out_dir)
+        mesh = getattr(result, "mesh", result)
+        (export if export is not None else mesh).export(out_dir / "mesh.ply")
+        plot_mesh(mesh, loops, out_dir / "mesh.png", title=title)
+        return mesh_summary(result, loops)

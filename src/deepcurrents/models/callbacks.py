@@ -18,7 +18,7 @@ import lightning as L
 import numpy as np
 import torch
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import positive_int
 from deepcurrents.eval.render import (
     DensitySettings,
     current_to_view,
@@ -56,8 +56,7 @@ class MediaCallback(L.Callback):
         checks = (("every_n_steps", every_n_steps, 0), ("size", size, 1), ("samples", samples, 2),
                   ("grid", grid, 4))
         for name, value, low in checks:
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ConfigError(f"callbacks.media.{name}={value!r} must be an integer ≥ {low}.")
+            positive_int(f"callbacks.media.{name}", value, low)
         self.every_n_steps, self.final = every_n_steps, final
         self.size, self.samples, self.grid = size, samples, grid
         self.azimuth, self.elevation = azimuth, elevation

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -11,8 +9,8 @@ import numpy as np
 import torch
 
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method
-from deepcurrents.eval.metrics import boundary_error, curve_length, mass_estimate, mass_to_area
-from deepcurrents.eval.plots import plot_current_2d, plot_mesh
+from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_to_area
+from deepcurrents.eval.plots import plot_current_2d
 from deepcurrents.losses import current_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn import NeuralCurrent
@@ -48,8 +46,6 @@ class CurrentModule(DeepCurrentsModule):
         else:
             self.current = NeuralCurrent(dim=2, poles=torch.tensor(boundary["poles"]),
                                          signs=torch.tensor(boundary["signs"]), **net)
-        self._train_start: float | None = None
-        self.train_seconds = 0.0
 
     @property
     def dim(self) -> int:
@@ -66,21 +62,6 @@ class CurrentModule(DeepCurrentsModule):
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
         return loss
 
-    def on_train_start(self) -> None:
-        self._train_start = time.perf_counter()
-
-    def on_train_end(self) -> None:
-        if self._train_start is not None:
-            self.train_seconds += time.perf_counter() - self._train_start
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        super().on_save_checkpoint(checkpoint)
-        elapsed = time.perf_counter() - self._train_start if self._train_start else 0.0
-        checkpoint["train_seconds"] = self.train_seconds + elapsed
-
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        self.train_seconds = float(checkpoint.get("train_seconds", 0.0))
-
     @torch.no_grad()
     def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
         """Metrics, mesh (3D) or curve (2D) and a picture, written into ``out_dir``. → metrics dict."""
@@ -90,27 +71,16 @@ class CurrentModule(DeepCurrentsModule):
         samples = int(self.evaluation.get("mass_samples", 1 << 20))
         mass, stderr = mass_estimate(self.current, samples, seed=int(self.evaluation.get("seed", 12345)))
         scale = mass_to_area(1.0, self.dim, self.current.alpha_scale)
-        metrics: dict[str, Any] = {
-            "loss": mass,
-            "steps": int(self.global_step),
-            "train_seconds": round(self.train_seconds, 3),
-        }
+        metrics: dict[str, Any] = {"loss": mass, **self.run_metrics()}
         name = "area" if self.dim == 3 else "length"
         metrics[f"mass_{name}"] = mass * scale
         metrics[f"mass_{name}_stderr"] = stderr * scale
         if self.dim == 3:
             result = extract_surface(self.current, **self.mesh_options())
             self.meshing = result  # subclasses evaluate the same mesh further
-            mesh = result.mesh
             loops = [lp.cpu().double().numpy() for lp in self.current.loops]
-            metrics["mesh_area"] = float(mesh.area)
-            metrics["mesh_faces"] = int(len(mesh.faces))
-            metrics["boundary_error"] = boundary_error(mesh, loops) if len(mesh.faces) else None
-            metrics["mesh_level"] = result.level
-            metrics["boundary_loops_closed"] = result.zipped_loops
-            mesh.export(out_dir / "mesh.ply")
-            plot_mesh(mesh, loops, out_dir / "mesh.png",
-                      title=f"{self.hparams.boundary.get('name', '')}: area {mesh.area:.4f}")
+            title = f"{self.hparams.boundary.get('name', '')}: area {result.mesh.area:.4f}"
+            metrics.update(self.write_mesh(out_dir, result, loops, title))
         else:
             curves = extract_curve_2d(self.current, **self.evaluation.get("curve", {}))
             metrics["curve_length"] = curve_length(curves)
@@ -121,10 +91,7 @@ class CurrentModule(DeepCurrentsModule):
             )
             np.savez(out_dir / "curve.npz", *curves)
             self._plot_2d(curves, out_dir / "current.png")
-        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        return metrics
-
-    mesh_method = "phase"  # what evaluation.mesh.method=auto means for this model kind
+        return self.write_metrics(out_dir, metrics)
 
     def mesh_options(self) -> dict[str, Any]:
         """Keyword arguments of ``extract_surface`` for the final mesh (reconstruction adds ``bounds``)."""

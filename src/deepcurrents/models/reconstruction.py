@@ -4,7 +4,6 @@ the unidirectional Chamfer distance (UCD) from the target to the extracted mesh.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -170,5 +169,4 @@ class ReconstructionModule(CurrentModule):
         if target is not None:
             loops = [lp.cpu().double().numpy() for lp in self.current.loops]
             plot_mesh(target, loops, out_dir / "target.png", title="target")
-        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
-        return metrics
+        return self.write_metrics(out_dir, metrics)
