@@ -45,21 +45,28 @@ def output_dir(ckpt_path: str, out_dir: str | None) -> Path:
     return path
 
 
-def run_app(main: Callable[[Any], Any], cfg: Any) -> Any:
-    """Runs an app's body, turning user errors into one sentence on stderr and exit status 2."""
-    missing = sorted(OmegaConf.missing_keys(cfg))
-    if missing:
-        print(f"error: {', '.join(missing)} must be given, e.g. `{missing[0]}=…` on the command line.",
-              file=sys.stderr)
-        sys.exit(2)
+def exit_on_user_error(body: Callable[..., Any], *args: Any) -> Any:
+    """``body(*args)``; a user error ends the process with one sentence on stderr and exit status 2
+    (3 when the loss became NaN), never a traceback."""
     try:
-        return main(cfg)
+        return body(*args)
     except UserInputError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(2)
     except NonFiniteLossError as err:
         print(f"error: {err}", file=sys.stderr)
         sys.exit(3)
+
+
+def run_app(main: Callable[[Any], Any], cfg: Any) -> Any:
+    """Runs an app's body: settings that must be given are checked first, then user errors end in one
+    sentence (:func:`exit_on_user_error`)."""
+    missing = sorted(OmegaConf.missing_keys(cfg))
+    if missing:
+        print(f"error: {', '.join(missing)} must be given, e.g. `{missing[0]}=…` on the command line.",
+              file=sys.stderr)
+        sys.exit(2)
+    return exit_on_user_error(main, cfg)
 
 
 def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> dict[str, Any]:

@@ -3,13 +3,12 @@ run (or a suite of runs) into Hydra's run directory; user errors end in one sent
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
 
-from deepcurrents.errors import NonFiniteLossError, UserInputError
+from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.experiments.runner import train
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[3] / "conf")
@@ -20,14 +19,7 @@ def run_cli(cfg: DictConfig) -> float | None:
 
     Returns the value an Optuna sweep minimises (``cfg.objective``), if set.
     """
-    try:
-        metrics = train(cfg)
-    except UserInputError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)
-    except NonFiniteLossError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(3)
+    metrics = exit_on_user_error(train, cfg)
     objective = cfg.get("objective")
     if metrics is not None and objective:
         value = metrics.get(objective)
