@@ -1,4 +1,4 @@
-"""Closed-form Biot–Savart fields α_Γ of boundaries (paper eq. biot-savart; design.md).
+"""Closed-form Biot–Savart fields α_Γ of boundaries (paper eq. biot-savart).
 
 In 3D, Γ is one or more closed polygonal loops and α is the gradient of the solid angle Ω_Γ seen from x
 (up to sign). In 2D, Γ is a set of signed points and α is the gradient of the total signed angle.
