@@ -5,9 +5,10 @@ import math
 import numpy as np
 import trimesh
 
-from deepcurrents.eval.meshing import border_loops, clip_by_field, zip_to_loop
+from deepcurrents.eval.meshing import clip_by_field, zip_to_loop
 from deepcurrents.eval.metrics import boundary_error
 from deepcurrents.geometry import circle
+from deepcurrents.geometry.topology import border_loops
 
 
 def grid_square(n=40, half=1.0):

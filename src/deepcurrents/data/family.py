@@ -33,11 +33,12 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from deepcurrents.data.ambient import stream_seed
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
-from deepcurrents.data.targets import boundary_edges, mesh_boundary_loops, reconstruction_sample
+from deepcurrents.data.targets import mesh_boundary_loops, reconstruction_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
 from deepcurrents.geometry.meshes import read_mesh
+from deepcurrents.geometry.topology import border_edges
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +109,7 @@ def loop_indices(vertices: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     loops = mesh_boundary_loops(vertices, faces)
     if not loops:
         return []
-    candidates = np.unique(boundary_edges(faces))
+    candidates = np.unique(border_edges(faces))
     dist, nearest = cKDTree(vertices[candidates]).query(np.concatenate(loops))
     assert dist.max() == 0.0, "boundary loop vertices are mesh vertices"
     idx = candidates[nearest]

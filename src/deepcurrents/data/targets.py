@@ -10,7 +10,7 @@ and the families engineer's augmentation (a deformed mesh every step) can call i
 - :func:`reconstruction_sample`: one batch {"x", "metric", "surface_points", "surface_normals", "epsilon"}.
 - :class:`MeshTarget` / :class:`PointCloudTarget`: the same for a fixed target, with its tree built once.
 
-Orientation check (design.md): for a flat disk with normal +z and its Stokes-oriented rim, the ideal
+Orientation check: for a flat disk with normal +z and its Stokes-oriented rim, the ideal
 f = −alpha_scale·Ω_Γ drops by 4π·alpha_scale ≈ 0.0126 > δ = 0.01 from y − εn to y + εn, so the surface
 hinge loss (δ − f(y − εn) + f(y + εn))^+ can reach zero; the reversed rim would fight it.
 """
@@ -23,6 +23,8 @@ import igl
 import numpy as np
 import torch
 from scipy.spatial import cKDTree
+
+from deepcurrents.geometry.topology import border_edges
 
 # the paper's surface-loss offsets ε ~ U[0.0199, 0.0201]
 EPSILON_RANGE = (0.0199, 0.0201)
@@ -48,13 +50,6 @@ def _edge_code(edges: np.ndarray, num_vertices: int) -> np.ndarray:
     return edges[:, 0].astype(np.int64) * (num_vertices + 1) + edges[:, 1]
 
 
-def boundary_edges(faces: np.ndarray) -> np.ndarray:
-    """Directed edges used by exactly one face, in that face's orientation. (F, 3) → (E, 2)."""
-    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    _, inv, counts = np.unique(np.sort(directed, 1), axis=0, return_inverse=True, return_counts=True)
-    return directed[counts[inv.reshape(-1)] == 1]
-
-
 def mesh_boundary_loops(vertices, faces) -> list[np.ndarray]:
     """Γ of a triangle mesh: its boundary loops as (M_i, 3) float64 arrays, oriented with the faces
     (each loop walks the boundary edges in their faces' direction, i.e. Stokes' orientation for the
@@ -65,7 +60,7 @@ def mesh_boundary_loops(vertices, faces) -> list[np.ndarray]:
     loops = igl.boundary_loop_all(f)
     if not loops:
         return []
-    edges = boundary_edges(f)
+    edges = border_edges(f)
     forward = _edge_code(edges, len(v))
     out = []
     for loop in loops:  # a handful of loops; their vertices are handled as arrays
@@ -194,7 +189,7 @@ class MeshTarget:
         self.vertex_normals = igl.per_vertex_normals(self.vertices, self.faces)
         self.areas = 0.5 * igl.doublearea(self.vertices, self.faces)
         # edge k of a face is the one opposite its vertex k
-        edges = boundary_edges(self.faces)
+        edges = border_edges(self.faces)
         f = self.faces
         opposite = np.stack([f[:, [1, 2]], f[:, [2, 0]], f[:, [0, 1]]], 1)  # (F, 3, 2)
         nv = len(self.vertices)

@@ -10,8 +10,8 @@ import numpy as np
 import torch
 import trimesh
 
-from deepcurrents.eval.meshing import border_edges
 from deepcurrents.geometry.polyline import closed_loop_segments, polyline_hausdorff
+from deepcurrents.geometry.topology import border_edges
 
 
 def jump(dim: int) -> float:
@@ -20,7 +20,9 @@ def jump(dim: int) -> float:
 
 
 def mass_to_area(mass: float, dim: int, alpha_scale: float) -> float:
-    """mass_area = E|ω| · vol(U) / (jump · alpha_scale); an upper bound of the minimal area (design.md)."""
+    """mass_area = E|ω| · vol(U) / (jump · alpha_scale): the optimal current is jump · alpha_scale · n δ_Σ
+    (the (solid) angle jumps by 4π across any surface spanning Γ, 2π in 2D), so for any current E|ω| is at
+    least jump · alpha_scale · Area(Σ_min) / vol(U), and mass_area is an upper bound of the minimal area."""
     return mass * 2.0**dim / (jump(dim) * alpha_scale)
 
 

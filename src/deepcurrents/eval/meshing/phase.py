@@ -1,0 +1,61 @@
+"""The default meshing method: the surface where the current's phase turns over.
+
+The phase φ = f/(2·alpha_scale) + Ω_Γ/2 of a 3D current is constant off its surface (mod 2π), since there
+ω = ∇f + alpha_scale·∇Ω ≈ 0; across the surface f jumps by ±4π·alpha_scale, so e^{iφ} turns once around
+the circle. Ω is defined modulo 4π, which e^{iφ} does not see: no branch cut. With θ the off-surface value
+of φ (its circular mean over the grid, where most nodes are off the surface), the surface is the zero set
+of sin(φ − θ) where cos(φ − θ) < 0: every sheet, whatever f's offset there (a single level of f misses
+sheets where f's jump does not straddle it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.ndimage import map_coordinates
+
+from deepcurrents.eval.meshing.method import MeshMethod
+from deepcurrents.geometry.biot_savart import solid_angle
+
+
+def current_phase(current, x: torch.Tensor, chunk_size: int = 1 << 16) -> torch.Tensor:
+    """The phase φ = f/(2·alpha_scale) + Ω_Γ/2 of a 3D current at points x (P, 3) → (P,) float64 (see the
+    module docstring): constant off the surface (mod 2π), turning once across it."""
+    return torch.cat([phase_from_f(current, chunk, current.evaluate(chunk, chunk_size, omega=False))
+                      for chunk in torch.split(x, chunk_size)])
+
+
+def phase_from_f(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    """φ at points x (P, 3) from f already evaluated there (P,) → (P,) float64."""
+    omega = solid_angle(x.double(), [lp.to(x.device) for lp in current.loops])
+    return f.double() / (2.0 * current.alpha_scale) + 0.5 * omega
+
+
+class PhaseMethod(MeshMethod):
+    """sin(φ − θ) = 0 where cos(φ − θ) < 0; Newton on g = sin(φ − θ), ∇g = cos(φ − θ)·ω/(2·alpha_scale)."""
+
+    name = "phase"
+
+    def sample(self, points, shape, loops, voxel):
+        phase = current_phase(self.current, points, self.chunk_size)
+        self.theta = float(torch.angle(torch.exp(1j * phase).mean()))  # off the surface, where most of the grid is
+        rel = (phase - self.theta).cpu().numpy().reshape(tuple(shape))
+        self._side = np.cos(rel)
+        return np.sin(rel), 0.0
+
+    @property
+    def reported_level(self) -> float:
+        return self.theta
+
+    def empty_reason(self) -> str:
+        return "The current's phase does not turn over"
+
+    def keep_marched(self, verts, faces):
+        # sin(φ − θ) also vanishes off the surface (φ ≈ θ there): keep the faces where φ is opposite θ
+        return faces[map_coordinates(self._side, verts.T, order=1)[faces].mean(1) < 0]
+
+    def residual(self, x):
+        f, omega = self.current.evaluate(x)
+        rel = phase_from_f(self.current, x, f) - self.theta
+        g = (torch.cos(rel).float() / (2.0 * self.current.alpha_scale)).unsqueeze(-1) * omega
+        return torch.sin(rel).float(), g
