@@ -14,9 +14,14 @@ def apply_metric(omega: torch.Tensor, metric: torch.Tensor | None) -> torch.Tens
     return torch.einsum("nij,nj->ni", metric, omega)
 
 
-def current_loss(omega: torch.Tensor, metric: torch.Tensor | None = None) -> torch.Tensor:
-    """L_curr = E_x |B_x ω(x)| (paper eq. massmin-deep-metric). omega: (N, d) → scalar."""
-    return apply_metric(omega, metric).norm(dim=-1).mean()
+def current_loss(omega: torch.Tensor, metric: torch.Tensor | None = None,
+                 weight: torch.Tensor | None = None) -> torch.Tensor:
+    """L_curr = E_x |B_x ω(x)| (paper eq. massmin-deep-metric). omega: (N, d) → scalar.
+
+    ``weight`` (N,): importance weights 1 / (vol(U)·density) of non-uniform samples (data.sampling), so the
+    mean stays an unbiased estimate of the uniform expectation."""
+    norms = apply_metric(omega, metric).norm(dim=-1)
+    return (norms * weight).mean() if weight is not None else norms.mean()
 
 
 def surface_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, margin: float = 0.01) -> torch.Tensor:

@@ -1,4 +1,5 @@
-"""Uniform samples of the domain U = [-1, 1]^d and the DataModule for minimal surfaces."""
+"""Samples of the domain U = [-1, 1]^d (uniform by default; see data.sampling) and the DataModule for minimal
+surfaces."""
 
 from __future__ import annotations
 
@@ -9,8 +10,9 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
+from deepcurrents.data.sampling import AmbientSampler, cell_scores, sampling_options
 from deepcurrents.errors import ConfigError
-from deepcurrents.geometry import Boundary, PointBoundary, load_boundary, validate_points
+from deepcurrents.geometry import Boundary, PointBoundary, biot_savart, biot_savart_2d, load_boundary, validate_points
 
 
 def stream_seed(seed: int, rank: int, worker: int, start_step: int) -> int:
@@ -19,22 +21,31 @@ def stream_seed(seed: int, rank: int, worker: int, start_step: int) -> int:
 
 
 class AmbientSamples(IterableDataset):
-    """An endless stream of batches {"x": (num_samples, dim)} drawn uniformly from [-1, 1]^dim.
+    """An endless stream of batches {"x": (num_samples, dim)} of [-1, 1]^dim: uniform by default, or from
+    ``sampling`` (AmbientSampler keyword arguments: Sobol points, or importance samples that also carry
+    "weight": (num_samples,), 1 / (vol(U)·density), so that the weighted loss is still the uniform mean).
 
     Each DDP rank and loader worker draws its own stream; ``start_step`` makes a resumed run continue
     with fresh samples instead of replaying the first ones.
     """
 
-    def __init__(self, dim: int, num_samples: int, seed: int = 0, rank: int = 0, start_step: int = 0):
+    def __init__(self, dim: int, num_samples: int, seed: int = 0, rank: int = 0, start_step: int = 0,
+                 sampling: dict | None = None):
         self.dim, self.num_samples = dim, num_samples
         self.seed, self.rank, self.start_step = seed, rank, start_step
+        self.sampling = dict(sampling or {})
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         info = get_worker_info()
         worker = info.id if info is not None else 0
-        gen = torch.Generator().manual_seed(stream_seed(self.seed, self.rank, worker, self.start_step))
+        seed = stream_seed(self.seed, self.rank, worker, self.start_step)
+        if self.sampling.get("kind", "uniform") == "uniform":
+            gen = torch.Generator().manual_seed(seed)
+            while True:
+                yield {"x": torch.rand(self.num_samples, self.dim, generator=gen) * 2.0 - 1.0}
+        sampler = AmbientSampler(self.dim, seed=seed, **self.sampling)
         while True:
-            yield {"x": torch.rand(self.num_samples, self.dim, generator=gen) * 2.0 - 1.0}
+            yield sampler.sample(self.num_samples)
 
 
 class MinimalSurfaceDataModule(L.LightningDataModule):
@@ -55,8 +66,10 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
         num_samples: int = 4096,
         num_workers: int = 0,
         seed: int = 0,
+        sampling: dict | None = None,
     ):
         super().__init__()
+        self.sampling = sampling_options(sampling)
         if num_samples <= 0:
             raise ConfigError(f"data.num_samples={num_samples} must be a positive integer.")
         if curve_vertices < 3:
@@ -73,11 +86,23 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
             self.boundary = validate_points(points, signs)
         else:
             raise ConfigError(f"data.dim={dim} must be 2 or 3.")
+        if self.sampling.get("kind") == "importance":
+            AmbientSampler(dim, **self.sampling)  # checks the options before training
+            self.sampling["scores"] = self.alpha_scores(int(self.sampling.get("resolution", 16)))
+
+    def alpha_scores(self, resolution: int) -> torch.Tensor:
+        """Mean |α_Γ| per cell of a resolution^dim grid: where the untrained current (ω = α) is large. → (C,)"""
+        if self.dim == 3:
+            loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in self.boundary.loops]
+            return cell_scores(lambda x: biot_savart(x, loops), 3, resolution, seed=self.seed)
+        poles = torch.as_tensor(self.boundary.points, dtype=torch.float32)
+        signs = torch.as_tensor(self.boundary.signs, dtype=torch.float32)
+        return cell_scores(lambda x: biot_savart_2d(x, poles, signs), 2, resolution, seed=self.seed)
 
     def train_dataloader(self) -> DataLoader:
         trainer = self.trainer
         rank = trainer.global_rank if trainer is not None else 0
         start = trainer.global_step if trainer is not None else 0
-        dataset = AmbientSamples(self.dim, self.num_samples, self.seed, rank, start)
+        dataset = AmbientSamples(self.dim, self.num_samples, self.seed, rank, start, self.sampling)
         return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
                           persistent_workers=self.num_workers > 0)

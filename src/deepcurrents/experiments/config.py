@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import re
+from datetime import timedelta
+from typing import Any
+
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError, positive_int
@@ -29,9 +33,48 @@ def _nonnegative(cfg: DictConfig, key: str) -> None:
         raise ConfigError(f"{key}={value!r} must be a non-negative number.")
 
 
+def max_time_seconds(value: Any) -> float | None:
+    """``trainer.max_time`` in seconds: None (no time limit), a number of seconds, Lightning's "DD:HH:MM:SS"
+    string, or a dict of timedelta keywords ({minutes: 3}). Anything else: one sentence naming the key."""
+    if value is None:
+        return None
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        seconds = float(value)
+    elif isinstance(value, str):
+        match = re.fullmatch(r"(\d+):(\d\d):(\d\d):(\d\d)", value.strip())
+        if match is None:
+            raise ConfigError(f"trainer.max_time={value!r} must be a number of seconds or DD:HH:MM:SS "
+                              "(e.g. 00:00:03:00 for three minutes).")
+        d, h, m, s = (int(g) for g in match.groups())
+        seconds = timedelta(days=d, hours=h, minutes=m, seconds=s).total_seconds()
+    elif isinstance(value, dict) or OmegaConf.is_dict(value):
+        try:
+            seconds = timedelta(**{k: float(v) for k, v in dict(value).items()}).total_seconds()
+        except (TypeError, ValueError) as err:
+            raise ConfigError(f"trainer.max_time={dict(value)!r} is not a duration ({err}).") from None
+    else:
+        raise ConfigError(f"trainer.max_time={value!r} must be a number of seconds or DD:HH:MM:SS.")
+    if not seconds > 0:
+        raise ConfigError(f"trainer.max_time={value!r} must be a positive duration.")
+    return seconds
+
+
+def trainer_overrides(cfg: DictConfig) -> dict[str, Any]:
+    """Keyword arguments that replace config values when the Trainer is built: ``max_time`` as a
+    timedelta (Lightning refuses a plain number of seconds)."""
+    seconds = max_time_seconds(OmegaConf.select(cfg, "trainer.max_time"))
+    return {"max_time": timedelta(seconds=seconds)} if seconds is not None else {}
+
+
 def validate_config(cfg: DictConfig) -> None:
     """Raises ConfigError naming the first impossible value (steps, samples, evaluation sizes)."""
-    _positive_int(cfg, "trainer.max_steps")
+    max_steps = OmegaConf.select(cfg, "trainer.max_steps")
+    if max_steps != -1:  # Lightning's "no step limit"
+        _positive_int(cfg, "trainer.max_steps")
+    seconds = max_time_seconds(OmegaConf.select(cfg, "trainer.max_time"))
+    if max_steps == -1 and seconds is None:
+        raise ConfigError("trainer.max_steps=-1 (no step limit) needs a time budget: set trainer.max_time "
+                          "(seconds or DD:HH:MM:SS).")
     _positive_int(cfg, "data.num_samples")
     _positive_int(cfg, "evaluation.mass_samples")
     _positive_int(cfg, "evaluation.mesh.resolution", 8)

@@ -29,7 +29,7 @@ from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import UserInputError
-from deepcurrents.experiments.config import validate_config
+from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.models.checkpointing import AtomicCheckpointIO
 from deepcurrents.models.current_module import boundary_spec
 
@@ -107,6 +107,7 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
         callbacks=build_callbacks(cfg, out_dir),
         plugins=[AtomicCheckpointIO()],
         default_root_dir=str(out_dir),
+        **trainer_overrides(cfg),  # max_time in seconds → timedelta
     )
     ckpt_path = cfg.get("ckpt_path")
     if ckpt_path is not None and not Path(ckpt_path).is_file():

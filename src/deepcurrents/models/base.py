@@ -18,6 +18,7 @@ import trimesh
 from deepcurrents.errors import ConfigError, NonFiniteLossError, positive_int
 from deepcurrents.eval.metrics import mesh_summary
 from deepcurrents.eval.plots import plot_mesh
+from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
 
 CHECKPOINT_KEY = "deepcurrents"
 
@@ -46,7 +47,9 @@ def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None) -> di
 class DeepCurrentsModule(L.LightningModule):
     """Base class of every model kind. Subclasses define ``training_step`` and ``final_evaluation``.
 
-    ``optim`` ({"lr", "step_size", "gamma"}: Adam with lr × gamma every step_size steps) may be None for
+    ``optim`` ({"lr", "step_size", "gamma"}: Adam with lr × gamma every step_size steps; optional
+    "schedule": "cosine" with "warmup" and "min_factor" follows the run's budget instead, models.schedules;
+    optional "betas": Adam's) may be None for
     models that bring their own optimiser (the grid baseline's ADMM overrides ``configure_optimizers``).
     Training time (``train_seconds``) counts only the fit loop, across resumes: it is carried by every
     checkpoint and restored from it.
@@ -64,14 +67,21 @@ class DeepCurrentsModule(L.LightningModule):
                 raise ConfigError(f"model.optim.step_size={step_size} must be a positive number of steps.")
             if not 0 < gamma <= 1:
                 raise ConfigError(f"model.optim.gamma={gamma} must be in (0, 1].")
+            check_schedule(optim)
         self.run_config: dict | None = None  # set by the entry point; saved in checkpoints
         self.train_seconds = 0.0  # training time of the fit loops that ended (this run and those it resumed)
         self._train_start: float | None = None
 
     def configure_optimizers(self):
         optim = self.hparams.optim
-        opt = torch.optim.Adam(self.parameters(), lr=float(optim["lr"]))
-        sched = torch.optim.lr_scheduler.StepLR(opt, step_size=int(optim["step_size"]), gamma=float(optim["gamma"]))
+        betas = tuple(float(b) for b in optim.get("betas") or (0.9, 0.999))
+        opt = torch.optim.Adam(self.parameters(), lr=float(optim["lr"]), betas=betas)
+        if optim.get("schedule", "step") == "cosine":  # the horizon is the budget (models.schedules)
+            sched = BudgetCosine(opt, lambda: trainer_progress(self.trainer, self.global_step),
+                                 float(optim.get("warmup", 0.0)), float(optim.get("min_factor", 0.0)))
+        else:  # the authors' step decay
+            sched = torch.optim.lr_scheduler.StepLR(opt, step_size=int(optim["step_size"]),
+                                                    gamma=float(optim["gamma"]))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
 
     def check_finite(self, loss: torch.Tensor | float, hint: str = "try a lower model.optim.lr") -> None:

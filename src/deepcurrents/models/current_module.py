@@ -53,7 +53,7 @@ class CurrentModule(DeepCurrentsModule):
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         _, omega = self.current(batch["x"], create_graph=True)
-        loss = current_loss(omega, batch.get("metric"))
+        loss = current_loss(omega, batch.get("metric"), batch.get("weight"))
         self.check_finite(loss)
         self.log("train/loss", loss, prog_bar=True)
         # the extraction-free area (length in 2D) bound, from this batch; an upper bound only for B = I

@@ -1,0 +1,195 @@
+"""Time to quality: the budget settings (trainer.max_time, max_steps=-1), the schedule that follows the budget
+(a fake clock), and the non-uniform samplers whose weighted loss stays an unbiased estimate of the uniform mean
+(closed-form integrals)."""
+
+import math
+
+import pytest
+import torch
+from conftest import CONF_DIR
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+
+from deepcurrents.data.sampling import AmbientSampler, cell_centres, cell_scores
+from deepcurrents.errors import ConfigError
+from deepcurrents.experiments.config import max_time_seconds, trainer_overrides, validate_config
+from deepcurrents.models.schedules import BudgetCosine, budget_progress, cosine_factor, trainer_progress
+
+
+def compose_cfg(overrides):
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        return compose(config_name="train", overrides=overrides)
+
+
+# ----------------------------------------------------------------------------------- budget settings
+@pytest.mark.parametrize(("value", "seconds"), [(180, 180.0), (2.5, 2.5), ("00:00:03:00", 180.0),
+                                                ("01:00:00:10", 86410.0), ({"minutes": 3}, 180.0), (None, None)])
+def test_max_time_forms(value, seconds):
+    assert max_time_seconds(value) == seconds
+
+
+@pytest.mark.parametrize("value", ["3 minutes", "00:03:00", -5, 0, {"fortnights": 1}])
+def test_bad_max_time_is_one_sentence(value):
+    with pytest.raises(ConfigError, match=r"trainer\.max_time="):
+        max_time_seconds(value)
+
+
+def test_max_time_and_no_step_limit_compose_without_plus():
+    cfg = compose_cfg(["trainer.max_time=90", "trainer.max_steps=-1", "recipe=fast"])
+    validate_config(cfg)
+    assert trainer_overrides(cfg)["max_time"].total_seconds() == 90.0
+    assert cfg.model.optim.schedule == "cosine"
+    with pytest.raises(ConfigError, match=r"trainer\.max_steps=-1.*trainer\.max_time"):
+        validate_config(compose_cfg(["trainer.max_steps=-1"]))
+    with pytest.raises(ConfigError, match=r"trainer\.max_steps=-2"):
+        validate_config(compose_cfg(["trainer.max_steps=-2"]))
+
+
+def test_paper_preset_keeps_the_authors_schedule():
+    cfg = compose_cfg(["preset=paper", "experiment=minimal_trefoil"])
+    assert cfg.model.optim.schedule == "step" and cfg.model.optim.lr == 5e-4
+    assert cfg.data.sampling.kind == "uniform" and cfg.data.num_samples == 4096
+
+
+# ---------------------------------------------------------------------------------- budget schedule
+def test_progress_is_the_larger_fraction():
+    assert budget_progress(10, 100, 50.0, 100.0) == 0.5
+    assert budget_progress(80, 100, 50.0, 100.0) == 0.8
+    assert budget_progress(10, -1, 30.0, 60.0) == 0.5  # no step limit
+    assert budget_progress(500, 100, 0.0, None) == 1.0  # clipped
+    with pytest.raises(ConfigError, match="horizon"):
+        budget_progress(1, -1, 1.0, None)
+
+
+def test_cosine_schedule_follows_a_fake_clock():
+    """The learning rate depends on the seconds used, not on the steps taken: with a fake clock, 3 steps at
+    the half-way time give the cosine's midpoint, whatever the step count."""
+    now = {"t": 0.0}
+    param = torch.nn.Parameter(torch.zeros(1))
+    opt = torch.optim.Adam([param], lr=2.0)
+    sched = BudgetCosine(opt, lambda: budget_progress(0, -1, now["t"], 100.0), warmup=0.1, min_factor=0.0)
+    assert opt.param_groups[0]["lr"] == pytest.approx(2.0 * 1e-3)  # warm-up starts (almost) at zero
+    for t, expected in [(5.0, 0.5), (10.0, 1.0), (55.0, 0.5), (100.0, 0.0), (250.0, 0.0)]:
+        now["t"] = t
+        opt.step()
+        sched.step()
+        assert opt.param_groups[0]["lr"] == pytest.approx(2.0 * expected, abs=1e-12), t
+    # the closed form between the ends: warm-up 0.1, then half a cosine over [0.1, 1]
+    assert cosine_factor(0.325, 0.1, 0.2) == pytest.approx(0.2 + 0.8 * 0.5 * (1 + math.cos(math.pi * 0.25)))
+
+
+def test_trainer_progress_reads_lightnings_timer(monkeypatch):
+    """trainer.max_time installs Lightning's Timer; the progress is its elapsed / duration (fake monotonic)."""
+    import lightning as L
+    from lightning.pytorch.callbacks import timer as timer_module
+    from lightning.pytorch.trainer.states import RunningStage
+
+    clock = {"t": 1000.0}
+
+    class FakeTime:
+        @staticmethod
+        def monotonic():
+            return clock["t"]
+
+    monkeypatch.setattr(timer_module, "time", FakeTime)
+    trainer = L.Trainer(max_time={"seconds": 120}, max_steps=-1, logger=False, enable_checkpointing=False,
+                        enable_progress_bar=False, enable_model_summary=False)
+    timer = next(cb for cb in trainer.callbacks if isinstance(cb, timer_module.Timer))
+    timer._start_time[RunningStage.TRAINING] = clock["t"]
+    clock["t"] += 30.0
+    assert trainer_progress(trainer, step=7) == pytest.approx(0.25)
+    trainer_steps = L.Trainer(max_steps=40, logger=False, enable_checkpointing=False, enable_progress_bar=False)
+    assert trainer_progress(trainer_steps, step=10) == pytest.approx(0.25)
+
+
+# ----------------------------------------------------------------------------------------- sampling
+def gaussian_bump(x: torch.Tensor, centre: torch.Tensor, s: float) -> torch.Tensor:
+    """exp(−|x − c|²/s²) as a (N, 1) 'field'; its mean over [-1, 1]^d has a closed form (separable)."""
+    return torch.exp(-((x - centre) ** 2).sum(-1, keepdim=True) / s**2)
+
+
+def bump_mean(centre, s: float) -> float:
+    """(1/2^d) ∏_i ∫_{-1}^{1} exp(−(t − c_i)²/s²) dt, each factor (s√π/2)(erf((1−c)/s) + erf((1+c)/s))."""
+    value = 1.0
+    for c in centre:
+        value *= 0.5 * (s * math.sqrt(math.pi) / 2) * (math.erf((1 - c) / s) + math.erf((1 + c) / s))
+    return value
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize(("kind", "power"), [("sobol", 1.0), ("importance", 1.0), ("importance", 0.5)])
+def test_weighted_samples_estimate_the_uniform_mean(dim, kind, power):
+    """A sharp bump (s = 0.15, off-centre) has a closed-form mean. The importance cells are scored on a
+    different bump (mismatched on purpose): the estimator must stay unbiased, within 4 standard errors."""
+    centre = torch.tensor([0.3, -0.2, 0.1][:dim])
+    exact = bump_mean(centre.tolist(), 0.15)
+    scores = cell_scores(lambda x: gaussian_bump(x, -centre, 0.4) + 0.05, dim, 8, seed=1)
+    sampler = AmbientSampler(dim, kind=kind, seed=3, resolution=8, uniform_fraction=0.3, power=power,
+                             scores=scores)
+    estimates = []
+    for _ in range(200):
+        batch = sampler.sample(512)
+        assert batch["x"].shape == (512, dim) and batch["x"].abs().max() <= 1.0
+        w = batch.get("weight", torch.ones(512))
+        estimates.append(float((gaussian_bump(batch["x"], centre, 0.15).squeeze(-1) * w).mean()))
+    est = torch.tensor(estimates, dtype=torch.float64)
+    stderr = float(est.std() / math.sqrt(len(est)))
+    assert abs(float(est.mean()) - exact) < 4 * stderr + 1e-4 * exact, (float(est.mean()), exact, stderr)
+
+
+def test_importance_weights_have_mean_one_and_follow_the_scores():
+    """E_q[w] = 1 (w = 1/(vol·q)), the weights are bounded by 1/u, and the cells with high score get more
+    samples than uniform sampling would give them."""
+    scores = torch.zeros(4**3)
+    scores[:8] = 1.0
+    sampler = AmbientSampler(3, kind="importance", seed=0, resolution=4, uniform_fraction=0.25, scores=scores)
+    batch = sampler.sample(1 << 16)
+    w = batch["weight"]
+    assert float(w.mean()) == pytest.approx(1.0, abs=0.02)
+    assert float(w.max()) <= 1.0 / 0.25 + 1e-6
+    in_hot = (sampler.cell_index(batch["x"]) < 8).double().mean()
+    assert float(in_hot) == pytest.approx(0.25 * 8 / 64 + 0.75, abs=0.01)
+    # every point lies in the cell whose centre is nearest
+    centres = cell_centres(3, 4)
+    nearest = torch.cdist(batch["x"][:500], centres).argmin(1)
+    assert torch.equal(nearest, sampler.cell_index(batch["x"][:500]))
+
+
+def test_importance_estimator_of_the_untrained_mass_has_lower_variance():
+    """On |α| of a circle (the untrained current's mass integrand, ~1/r near Γ), α-scored importance samples
+    give the same mean as uniform samples (within errors) with a smaller spread per batch."""
+    from deepcurrents.geometry import biot_savart, circle
+
+    loop = [torch.as_tensor(circle(0.5, n=64), dtype=torch.float32)]
+    field = lambda x: biot_savart(x, loop)  # noqa: E731
+    gen = torch.Generator().manual_seed(0)
+    uniform = []
+    for _ in range(40):
+        x = torch.rand(1 << 14, 3, generator=gen) * 2 - 1
+        uniform.append(float(field(x).norm(dim=-1).mean()))
+    sampler = AmbientSampler(3, kind="importance", seed=1, resolution=16, uniform_fraction=0.3,
+                             scores=cell_scores(field, 3, 16))
+    weighted = []
+    for _ in range(40):
+        batch = sampler.sample(1 << 14)
+        weighted.append(float((field(batch["x"]).norm(dim=-1) * batch["weight"]).mean()))
+    u, w = torch.tensor(uniform, dtype=torch.float64), torch.tensor(weighted, dtype=torch.float64)
+    se = math.sqrt(float(u.var()) / len(u) + float(w.var()) / len(w))
+    assert abs(float(u.mean() - w.mean())) < 4 * se
+    assert float(w.std()) < float(u.std())
+
+
+def test_bad_sampling_options_are_one_sentence():
+    with pytest.raises(ConfigError, match=r"data\.sampling\.kind="):
+        AmbientSampler(3, kind="stratified")
+    with pytest.raises(ConfigError, match=r"data\.sampling\.uniform_fraction="):
+        AmbientSampler(3, kind="importance", uniform_fraction=0.0)
+    with pytest.raises(ConfigError, match=r"model\.optim\.schedule="):
+        compose_and_build(["model.optim.schedule=linear"])
+
+
+def compose_and_build(extra):
+    from deepcurrents.experiments.runner import build
+
+    return build(compose_cfg(["logger=none", "model.net.width=8", "model.rff.num_frequencies=8", *extra]))
