@@ -11,11 +11,15 @@ from deepcurrents.cli.make_dataset import main
 from deepcurrents.data.human_parts import (
     CATEGORIES,
     DatasetError,
+    PartCut,
     anny_model,
     anny_parts,
     dataset_path,
     faust_parts,
     kabsch_rotation,
+    level_set_cut,
+    select_faces,
+    smooth_label_field,
     write_parts,
 )
 from deepcurrents.data.targets import mesh_boundary_loops
@@ -112,3 +116,144 @@ def test_dataset_errors_say_what_to_do(tmp_path):
         faust_parts(tmp_path)
     with pytest.raises(SystemExit, match="--faust-root is required"):
         main(["--source", "faust", "--out", str(tmp_path)])
+
+
+# ---------------------------------------------------------------------------------------------- smooth borders
+
+def tube(rings: np.ndarray, sides: int = 24, radius: float = 0.3, twist: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """An open prism tube: ``sides`` vertices on each ring at heights ``rings``, each ring turned by
+    ``twist`` × its index, every quad split in two, faces outward. → (vertices (R·S, 3), faces (F, 3))."""
+    ang = 2 * np.pi * np.arange(sides) / sides
+    verts = np.concatenate([np.c_[radius * np.cos(ang + twist * i), radius * np.sin(ang + twist * i),
+                                  np.full(sides, z)] for i, z in enumerate(rings)])
+    faces = []
+    for i in range(len(rings) - 1):
+        for j in range(sides):
+            a, b = i * sides + j, i * sides + (j + 1) % sides
+            c, d = a + sides, b + sides
+            faces += [[a, b, d], [a, d, c]]
+    return verts, np.array(faces, dtype=np.int64)
+
+
+def loop_stats(vertices: np.ndarray, faces: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """(border loops, how many border edges meet at each border vertex)."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    uniq, count = np.unique(edges, axis=0, return_counts=True)
+    assert count.max() <= 2  # no edge shared by three triangles
+    _, per_vertex = np.unique(uniq[count == 1].ravel(), return_counts=True)
+    return mesh_boundary_loops(vertices, faces), per_vertex
+
+
+def smallest_angle(vertices: np.ndarray, faces: np.ndarray) -> float:
+    tri = vertices[faces]
+    best = 180.0
+    for k in range(3):
+        a, b = tri[:, (k + 1) % 3] - tri[:, k], tri[:, (k + 2) % 3] - tri[:, k]
+        cos = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+        best = min(best, float(np.degrees(np.arccos(np.clip(cos, -1, 1))).min()))
+    return best
+
+
+def test_level_set_cut_of_a_tube_is_exact_on_the_level_set():
+    """A linear field z − z0 on a prism tube: without snapping the part is {z ≤ z0} exactly (its border is
+    on the plane, its area is the perimeter of the polygon times the height); orientation is kept."""
+    rings = np.array([-0.5, -0.3, -0.12, 0.05, 0.2, 0.4])
+    verts, faces = tube(rings, twist=np.pi / 24)
+    z0 = 0.1
+    cut = level_set_cut(verts, faces, z0 - verts[:, 2], snap=0.0)
+    part = cut.apply(verts)
+    loops, per_vertex = loop_stats(part, cut.faces)
+    assert (per_vertex == 2).all()
+    heights = sorted(float(loop[:, 2].mean()) for loop in loops)
+    assert heights[0] == pytest.approx(-0.5) and heights[1] == pytest.approx(z0, abs=1e-12)
+    top = min(loops, key=lambda lp: abs(lp[:, 2].mean() - z0))
+    np.testing.assert_allclose(top[:, 2], z0, atol=1e-12)  # every border vertex on the level set
+    side = 2 * 0.3 * np.sin(np.pi / 24)  # the regular 24-gon's side
+    area = trimesh.Trimesh(part, cut.faces, process=False).area
+    # twisted rings: the side walls are not planar, but z is linear on every triangle: area up to z0 is the
+    # sum of the triangles' areas below the plane; compare with the untwisted prism's exact value instead
+    flat_v, flat_f = tube(rings)
+    flat = level_set_cut(flat_v, flat_f, z0 - flat_v[:, 2], snap=0.0)
+    flat_area = trimesh.Trimesh(flat.apply(flat_v), flat.faces, process=False).area
+    assert flat_area == pytest.approx(24 * side * (z0 + 0.5), rel=1e-12)
+    assert area > flat_area  # the twisted walls are longer
+    # orientation: each new triangle faces the way its parent does (outward, like the tube's)
+    normals = trimesh.Trimesh(part, cut.faces, process=False).face_normals
+    centres = part[cut.faces].mean(1)
+    assert (np.einsum("ij,ij->i", normals[:, :2], centres[:, :2]) > 0).all()
+
+
+def test_level_set_cut_snaps_instead_of_leaving_slivers():
+    """A level just above a ring: the exact cut would leave triangles of 1/100 of an edge; with snapping the
+    border goes through the ring's vertices (within ``snap`` of an edge of the level set), the part is a
+    manifold with one border loop per end, and no triangle angle is below 10°."""
+    rings = np.array([-0.5, -0.25, 0.0, 0.25, 0.5])
+    verts, faces = tube(rings, twist=np.pi / 24)
+    z0 = 0.0025  # 1% of the 0.25 ring spacing above the middle ring
+    exact = level_set_cut(verts, faces, z0 - verts[:, 2], snap=0.0)
+    assert smallest_angle(exact.apply(verts), exact.faces) < 2.0
+    cut = level_set_cut(verts, faces, z0 - verts[:, 2], snap=0.2)
+    part = cut.apply(verts)
+    loops, per_vertex = loop_stats(part, cut.faces)
+    assert len(loops) == 2 and (per_vertex == 2).all()
+    top = max(loops, key=lambda lp: lp[:, 2].mean())
+    assert np.abs(top[:, 2] - z0).max() <= 0.2 * 0.25
+    assert smallest_angle(part, cut.faces) > 10.0
+
+
+def test_part_cut_follows_every_body_of_the_topology():
+    """The cut is affine combinations of the mesh's vertices: applied to an affinely moved body it gives the
+    moved part (rows sum to one), so parts of different bodies correspond vertex by vertex."""
+    verts, faces = tube(np.linspace(-0.5, 0.5, 7), twist=0.1)
+    rng = np.random.default_rng(1)
+    field = 0.13 - verts[:, 2] + 0.05 * np.sin(3 * np.arctan2(verts[:, 1], verts[:, 0]))  # a wavy level
+    cut = level_set_cut(verts, faces, field)
+    np.testing.assert_allclose(np.asarray(cut.weights.sum(1)).ravel(), 1.0, atol=1e-12)
+    mat, shift = rng.standard_normal((3, 3)), rng.standard_normal(3)
+    np.testing.assert_allclose(cut.apply(verts @ mat.T + shift), cut.apply(verts) @ mat.T + shift, atol=1e-12)
+    # the border follows the wave: the interpolated field vanishes on the crossing points
+    loops, per_vertex = loop_stats(cut.apply(verts), cut.faces)
+    assert len(loops) == 2 and (per_vertex == 2).all()
+    crossing = np.flatnonzero(np.diff(cut.weights.indptr) == 2)
+    np.testing.assert_allclose(cut.weights[crossing] @ field, 0.0, atol=1e-12)
+
+
+def test_smooth_label_field_cuts_a_labelled_band_along_a_smooth_curve():
+    """FAUST-style per-face labels with a zigzag border become a border within one ring of the label's
+    mean height, turning less at its vertices than the zigzag."""
+    rings = np.linspace(-0.5, 0.5, 11)
+    verts, faces = tube(rings, sides=32)
+    centres = verts[faces].mean(1)
+    ang = np.arctan2(centres[:, 1], centres[:, 0])
+    in_part = centres[:, 2] < 0.05 * np.sign(np.sin(8 * ang))  # a zigzag label border
+    field = smooth_label_field(faces, in_part, len(verts))
+    cut = level_set_cut(verts, faces, field - 0.5)
+    loops, per_vertex = loop_stats(cut.apply(verts), cut.faces)
+    assert len(loops) == 2 and (per_vertex == 2).all()
+    top = max(loops, key=lambda lp: lp[:, 2].mean())
+    assert np.abs(top[:, 2]).max() <= 0.1 + 1e-9  # within one ring (0.1) of z = 0
+    sawtooth = PartCut.from_faces(len(verts), faces, select_faces(faces, in_part))
+    saw_loops = mesh_boundary_loops(verts, sawtooth.faces)
+    saw_top = max(saw_loops, key=lambda lp: lp[:, 2].mean())
+    assert turning(top).mean() < 0.6 * turning(saw_top).mean()
+
+
+def turning(loop: np.ndarray) -> np.ndarray:
+    a, b = loop - np.roll(loop, 1, 0), np.roll(loop, -1, 0) - loop
+    cos = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+    return np.degrees(np.arccos(np.clip(cos, -1, 1)))
+
+
+def test_anny_smooth_borders_are_smoother_than_mesh_edge_cuts():
+    """The generator's default cut: hands keep one wrist loop, whose vertices turn far less than the
+    dominant-bone cut's sawtooth; the triangles it adds are no thinner than the body mesh's own."""
+    model = anny_model()
+    smooth, faces_cut = (anny_parts(1, seed=3, model=model, categories=["hands"], border=b)["hands"]
+                         for b in ("smooth", "faces"))
+    (v_s,), f_s, _ = smooth
+    (v_f,), f_f, _ = faces_cut
+    (loop_s,), (loop_f,) = mesh_boundary_loops(v_s, f_s), mesh_boundary_loops(v_f, f_f)
+    assert turning(loop_s).mean() < 0.5 * turning(loop_f).mean()
+    assert smallest_angle(v_s, f_s) >= smallest_angle(v_f, f_f) - 1e-6
+    with pytest.raises(DatasetError, match="border='zigzag'"):
+        anny_parts(1, model=model, border="zigzag")

@@ -8,7 +8,14 @@ import logging
 from collections.abc import Sequence
 from pathlib import Path
 
-from deepcurrents.data.human_parts import CATEGORIES, DatasetError, anny_parts, faust_parts, write_parts
+from deepcurrents.data.human_parts import (
+    BORDERS,
+    CATEGORIES,
+    DatasetError,
+    anny_parts,
+    faust_parts,
+    write_parts,
+)
 from deepcurrents.errors import UserInputError
 
 log = logging.getLogger("deepcurrents.make_dataset")
@@ -22,17 +29,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--faust-root", default=None, help="FAUST: the segmentation benchmark's root folder")
     parser.add_argument("--categories", nargs="*", default=list(CATEGORIES), choices=CATEGORIES)
+    parser.add_argument("--border", choices=BORDERS, default="smooth",
+                        help="smooth: cut along a level set of the skinning weights (FAUST: of the smoothed labels), "
+                        "inside triangles; faces: along mesh edges, each face to its dominant bone (the former cut)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         if args.source == "anny":
-            parts = anny_parts(args.num, args.seed, args.categories)
-            meta = {"generator": "anny", "bodies": args.num, "seed": args.seed}
+            parts = anny_parts(args.num, args.seed, args.categories, border=args.border)
+            meta = {"generator": "anny", "bodies": args.num, "seed": args.seed, "border": args.border}
         else:
             if not args.faust_root:
                 raise DatasetError("--faust-root is required for --source faust.")
-            parts = faust_parts(args.faust_root, args.categories)
-            meta = {"generator": "faust", "root": str(args.faust_root)}
+            parts = faust_parts(args.faust_root, args.categories, border=args.border)
+            meta = {"generator": "faust", "root": str(args.faust_root), "border": args.border}
         files = write_parts(parts, Path(args.out), args.source, meta)
     except UserInputError as err:
         raise SystemExit(f"error: {err}") from None

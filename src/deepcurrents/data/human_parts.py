@@ -5,10 +5,17 @@ from full bodies, preprocessed as the authors did for FAUST, written as
 Two sources share one pipeline (all bodies of a source share one topology, so parts correspond by index):
 
 - ``anny``: bodies generated offline with the Anny body model (``pip install .[anny]``; MakeHuman's CC0
-  assets ship inside the package) with random phenotypes and mild random poses, cut by skinning weights
-  (each face goes to the bone that dominates its vertices' weights).
+  assets ship inside the package) with random phenotypes and mild random poses, cut by skinning weights.
 - ``faust``: the FAUST meshes of the human segmentation benchmark (``meshes/train/faust/*.ply`` with
   ``segs/train/faust/faust_corrected.txt``, one label per face), for users who have it.
+
+Borders (``border="smooth"``, the default): each part is cut along the level set ``u = 1/2`` of a smooth
+per-vertex scalar u, interpolated inside the triangles it crosses, so Γ is a smooth curve and not a sawtooth of
+mesh edges. For Anny, u is the part's summed skinning weight (the share of the part's bones); for FAUST, the
+part's per-face label smoothed onto the vertices. Crossing points that fall very close to a vertex are snapped
+onto it, so the cut leaves no slivers. The cut is computed once on the shared topology as fixed affine
+combinations of body vertices (``PartCut``), so parts still correspond vertex by vertex across bodies.
+``border="faces"`` is the former cut along mesh edges (each face goes to the bone, or label, that dominates it).
 
 Preprocessing per category (authors' ``preprocess_data.py``): keep the part's largest connected component,
 centre each mesh, rotate it onto the category's first mesh (Kabsch on corresponding vertices), then one scale
@@ -23,6 +30,7 @@ import json
 import logging
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -99,17 +107,15 @@ def normalise_category(parts: Sequence[np.ndarray],
     return [a / scale for a in aligned], scale
 
 
-def split_bodies(bodies: Sequence[np.ndarray], faces: np.ndarray, category_faces: dict[str, np.ndarray]):
+def split_bodies(bodies: Sequence[np.ndarray], category_cuts: dict[str, PartCut]) -> dict:
     """Parts of every body for each category: {category: (list of vertex arrays, part faces, scale)}.
 
-    bodies: list of (V, 3) vertex arrays of one topology ``faces`` (F, 3); category_faces: face indices
-    of each category's part (already reduced to one connected component).
+    bodies: list of (V, 3) vertex arrays of one topology; category_cuts: each category's cut of it.
     """
     out = {}
-    for name, idx in category_faces.items():
-        used, sub_faces = cut_part(bodies[0], faces, idx)
-        parts, scale = normalise_category([np.asarray(b, np.float64)[used] for b in bodies])
-        out[name] = (parts, sub_faces, scale)
+    for name, cut in category_cuts.items():
+        parts, scale = normalise_category([cut.apply(b) for b in bodies])
+        out[name] = (parts, cut.faces, scale)
     return out
 
 
@@ -133,6 +139,165 @@ def select_faces(faces: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """Face indices where ``keep[face]`` holds, reduced to their largest connected component."""
     idx = np.flatnonzero(keep)
     return idx[largest_component(faces[idx])]
+
+
+# ---------------------------------------------------------------------------------------------- part cuts
+
+BORDERS = ("smooth", "faces")
+
+
+@dataclass(frozen=True)
+class PartCut:
+    """A part of a mesh topology: its vertices as fixed affine combinations of the full mesh's vertices and
+    its triangles. Applied to every body of the topology, it yields corresponding parts.
+
+    weights: (V', V) sparse, rows sum to one (a row with one entry is a kept vertex, two entries a point on an
+    edge); faces: (F', 3) indexing the part's vertices.
+    """
+
+    weights: scipy.sparse.csr_matrix
+    faces: np.ndarray
+
+    def apply(self, vertices: np.ndarray) -> np.ndarray:
+        """The part's vertices on one body. (V, 3) → (V', 3)."""
+        return np.asarray(self.weights @ np.asarray(vertices, np.float64))
+
+    @classmethod
+    def from_faces(cls, num_vertices: int, faces: np.ndarray, face_index: np.ndarray) -> PartCut:
+        """The part made of ``faces[face_index]`` (a cut along mesh edges)."""
+        used, sub = cut_part(np.empty((num_vertices, 0)), faces, face_index)
+        sel = scipy.sparse.csr_matrix((np.ones(len(used)), (np.arange(len(used)), used)),
+                                      shape=(len(used), num_vertices))
+        return cls(sel, sub)
+
+
+def _snap_values(faces: np.ndarray, values: np.ndarray, snap: float) -> np.ndarray:
+    """``values`` with those vertices set to exactly 0 where a crossing of the zero level on one of their
+    edges lies within ``snap`` (fraction of the edge) of them: the cut then passes through the vertex instead
+    of leaving a sliver."""
+    edges = np.unique(np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    a, b = values[edges[:, 0]], values[edges[:, 1]]
+    cross = a * b < 0
+    t = a[cross] / (a[cross] - b[cross])  # where along (e0 → e1) the field is 0
+    out = values.copy()
+    out[edges[cross][t < snap, 0]] = 0.0
+    out[edges[cross][t > 1 - snap, 1]] = 0.0
+    return out
+
+
+def _pinched_vertices(faces: np.ndarray) -> np.ndarray:
+    """Vertices where a triangle mesh is pinched: more than two border edges meet there. (F, 3) → (K,)."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    uniq, count = np.unique(edges, axis=0, return_counts=True)
+    border = uniq[count == 1].ravel()
+    ids, deg = np.unique(border, return_counts=True)
+    return ids[deg > 2]
+
+
+def level_set_cut(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, snap: float = 0.2,
+                  keep_faces: np.ndarray | None = None) -> PartCut:
+    """The part ``{values ≥ 0}`` of a triangle mesh, cut along the zero level set of the piecewise-linear
+    field ``values``: each crossed triangle is split at the iso-line, so the part's border lies exactly on
+    the level set, a smooth curve when the field is smooth.
+
+    vertices: (V, 3) a reference body (chooses the shorter diagonal where a quad is split); faces: (F, 3);
+    values: (V,) the field; snap: crossings closer than this fraction of an edge to a vertex go onto the
+    vertex (no sliver triangles; the border then deviates from the level set by at most ``snap`` of an edge);
+    keep_faces: (F,) bool, faces allowed in the part (others and their pieces are dropped). The part is
+    reduced to its largest connected component.
+    """
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
+    values = np.asarray(values, np.float64)
+    snapped = _snap_values(faces, values, snap)
+    for _ in range(10):  # a snapped saddle vertex would pinch the part: keep its own value instead
+        cut = _split_at_zero(vertices, faces, snapped, values, keep_faces)
+        pinched = _pinched_vertices(cut.faces)
+        rows = cut.weights[pinched].tocoo()
+        orig = rows.col[rows.data == 1.0]  # pinch points that are original vertices
+        orig = orig[(snapped[orig] == 0) & (values[orig] != 0)]
+        if len(orig) == 0:
+            return cut
+        snapped[orig] = values[orig]
+    return cut
+
+
+def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, original: np.ndarray,
+                   keep_faces: np.ndarray | None) -> PartCut:
+    """The {values ≥ 0} part of the mesh (see ``level_set_cut``), values with exact zeros after snapping."""
+    sign = np.sign(values).astype(np.int64)[faces]  # (F, 3)
+    pos, neg = (sign > 0).sum(1), (sign < 0).sum(1)
+    # all-zero triangles (a snapped triangle) follow the mean of the unsnapped field
+    flat = (pos == 0) & (neg == 0)
+    whole = (neg == 0) & (pos > 0) | flat & (original[faces].mean(1) >= 0)
+    split = (pos > 0) & (neg > 0)
+    if keep_faces is not None:
+        whole &= keep_faces
+        split &= keep_faces
+    new_faces = [faces[whole]]
+    points: dict[tuple[int, int], int] = {}  # edge (inside vertex, outside vertex) → new point id
+    n = len(vertices)
+    point_rows: list[tuple[int, int, float]] = []
+
+    def crossing(i: int, o: int) -> int:
+        key = (i, o)
+        if key not in points:
+            t = values[i] / (values[i] - values[o])  # in [snap, 1 − snap] after snapping
+            points[key] = n + len(points)
+            point_rows.append((i, o, float(t)))
+        return points[key]
+
+    for f in np.flatnonzero(split):
+        tri, s = faces[f], sign[f]
+        # the odd vertex first: the zero one, else the one alone on its side
+        odd = 0 if (s == 0).any() else (1 if pos[f] == 1 else -1)
+        k = int(np.flatnonzero(s == odd)[0])
+        a, b, c = tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]  # cyclic order kept: orientation is kept
+        sa, sb = values[a], values[b]
+        if sa == 0:
+            if sb > 0:
+                new_faces.append(np.array([[a, b, crossing(b, c)]]))
+            else:
+                new_faces.append(np.array([[a, crossing(c, b), c]]))
+        elif sa > 0:  # a alone inside: the corner triangle
+            new_faces.append(np.array([[a, crossing(a, b), crossing(a, c)]]))
+        else:  # a alone outside: the quad (pa, b, c, pc) in two triangles, along its shorter diagonal
+            pb, pc = crossing(b, a), crossing(c, a)
+            pos_b = vertices[b] + (vertices[a] - vertices[b]) * point_rows[pb - n][2]
+            pos_c = vertices[c] + (vertices[a] - vertices[c]) * point_rows[pc - n][2]
+            if np.linalg.norm(pos_b - vertices[c]) <= np.linalg.norm(pos_c - vertices[b]):
+                new_faces.append(np.array([[pb, b, c], [pb, c, pc]]))
+            else:
+                new_faces.append(np.array([[pb, b, pc], [b, c, pc]]))
+    all_faces = np.concatenate(new_faces).astype(np.int64)
+    all_faces = all_faces[largest_component(all_faces)]
+    # the weights: identity rows for the mesh's vertices, then (1 − t, t) rows for the crossing points
+    i, o, t = (np.array(x).reshape(-1) for x in zip(*point_rows, strict=True)) if point_rows else \
+        (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    ids = np.arange(n, n + len(point_rows))
+    full = scipy.sparse.csr_matrix(
+        (np.concatenate([np.ones(n), 1.0 - t, t]),
+         (np.concatenate([np.arange(n), ids, ids]), np.concatenate([np.arange(n), i, o]).astype(np.int64))),
+        shape=(n + len(point_rows), n))
+    used = np.unique(all_faces)
+    remap = np.full(full.shape[0], -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return PartCut(full[used], remap[all_faces])
+
+
+def smooth_label_field(faces: np.ndarray, in_part: np.ndarray, num_vertices: int,
+                       iterations: int = 8) -> np.ndarray:
+    """A smooth per-vertex field from a per-face label: the share of each vertex's faces in the part,
+    averaged with its neighbours ``iterations`` times (lazy umbrella smoothing). (F,) bool → (V,) in [0, 1]."""
+    count = np.bincount(faces.ravel(), minlength=num_vertices).astype(np.float64)
+    share = np.bincount(faces[in_part].ravel(), minlength=num_vertices) / np.maximum(count, 1)
+    edges = np.unique(np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    adj = scipy.sparse.coo_matrix((np.ones(2 * len(edges)), (edges.ravel(), edges[:, ::-1].ravel())),
+                                  shape=(num_vertices,) * 2).tocsr()
+    deg = np.maximum(np.asarray(adj.sum(1)).ravel(), 1)
+    for _ in range(iterations):
+        share = 0.5 * share + 0.5 * (adj @ share) / deg
+    return share
 
 
 # ---------------------------------------------------------------------------------------------- FAUST
@@ -166,11 +331,25 @@ def load_faust(root: str | Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarr
     return bodies, faces, labels
 
 
-def faust_parts(root: str | Path, categories: Sequence[str] = CATEGORIES) -> dict:
+def check_border(border: str) -> None:
+    """DatasetError unless ``border`` is one of BORDERS."""
+    if border not in BORDERS:
+        raise DatasetError(f"border='{border}' is not one of {', '.join(BORDERS)}.")
+
+
+def faust_parts(root: str | Path, categories: Sequence[str] = CATEGORIES, border: str = "smooth") -> dict:
     """The human parts of FAUST, preprocessed (see the module docstring)."""
+    check_border(border)
     bodies, faces, labels = load_faust(root)
-    chosen = {c: select_faces(faces, labels == FAUST_LABELS[c]) for c in categories}
-    return split_bodies(bodies, faces, chosen)
+    cuts = {}
+    for c in categories:
+        in_part = labels == FAUST_LABELS[c]
+        if border == "faces":
+            cuts[c] = PartCut.from_faces(len(bodies[0]), faces, select_faces(faces, in_part))
+        else:
+            field = smooth_label_field(faces, in_part, len(bodies[0]))
+            cuts[c] = level_set_cut(bodies[0], faces, field - 0.5)
+    return split_bodies(bodies, cuts)
 
 
 # ---------------------------------------------------------------------------------------------- Anny
@@ -186,20 +365,18 @@ def anny_model():
     return anny.Anny(skinning_method="lbs")
 
 
-def anny_face_bones(model) -> tuple[np.ndarray, np.ndarray]:
-    """(dominant bone index per face (F,), hidden-surface mask (F,)) from skinning weights and Anny's
-    texture segmentation."""
+def anny_skinning(model) -> tuple[np.ndarray, np.ndarray]:
+    """(per-vertex weight of every bone (V, B), rows summing to one; hidden-surface mask per face (F,)) from
+    Anny's skinning weights and texture segmentation."""
     from anny.face_segmentation import get_face_segmentation_mask
 
-    faces = model.get_triangular_faces().cpu().numpy().astype(np.int64)
     weights = model.vertex_bone_weights.cpu().numpy()
     bones = model.vertex_bone_indices.cpu().numpy()
     per_vertex = np.zeros((weights.shape[0], len(model.bone_labels)))
     rows = np.repeat(np.arange(len(weights)), weights.shape[1])
     np.add.at(per_vertex, (rows, bones.ravel()), weights.ravel())
-    dominant = per_vertex[faces].sum(1).argmax(1)
-    hidden = get_face_segmentation_mask(model, ANNY_HIDDEN).cpu().numpy()
-    return dominant, hidden
+    hidden = get_face_segmentation_mask(model, ANNY_HIDDEN).cpu().numpy().astype(bool)
+    return per_vertex, hidden
 
 
 def anny_bodies(model, num: int, seed: int = 0, pose_degrees: float = 6.0,
@@ -227,18 +404,27 @@ def anny_bodies(model, num: int, seed: int = 0, pose_degrees: float = 6.0,
 
 
 def anny_parts(num: int = 100, seed: int = 0, categories: Sequence[str] = CATEGORIES, model=None,
-               pose_degrees: float = 6.0) -> dict:
-    """Generated human parts: {category: (parts, faces, scale)} for ``num`` Anny bodies."""
+               pose_degrees: float = 6.0, border: str = "smooth") -> dict:
+    """Generated human parts: {category: (parts, faces, scale)} for ``num`` Anny bodies.
+
+    border: ``"smooth"`` cuts along the level set 1/2 of the part's summed skinning weight; ``"faces"`` gives
+    each face to the bone that dominates its vertices' weights (the former sawtooth cut)."""
+    check_border(border)
     model = model if model is not None else anny_model()
     faces = model.get_triangular_faces().cpu().numpy().astype(np.int64)
-    dominant, hidden = anny_face_bones(model)
+    per_vertex, hidden = anny_skinning(model)
     names = np.asarray(model.bone_labels)
-    chosen = {}
+    bodies = anny_bodies(model, num, seed, pose_degrees)
+    cuts = {}
     for c in categories:
         bone_ok = np.array([re.match(ANNY_BONES[c], n) is not None for n in names])  # 104 bone names
-        chosen[c] = select_faces(faces, bone_ok[dominant] & ~hidden)
-    bodies = anny_bodies(model, num, seed, pose_degrees)
-    return split_bodies(bodies, faces, chosen)
+        if border == "faces":
+            dominant = per_vertex[faces].sum(1).argmax(1)
+            cuts[c] = PartCut.from_faces(len(per_vertex), faces, select_faces(faces, bone_ok[dominant] & ~hidden))
+        else:
+            share = per_vertex[:, bone_ok].sum(1)  # (V,) the part's share of the skinning
+            cuts[c] = level_set_cut(bodies[0], faces, share - 0.5, keep_faces=~hidden)
+    return split_bodies(bodies, cuts)
 
 
 # ---------------------------------------------------------------------------------------------- dataset files
