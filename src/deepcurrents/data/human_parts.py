@@ -39,6 +39,7 @@ import trimesh
 from scipy.sparse.csgraph import connected_components
 
 from deepcurrents.errors import UserInputError
+from deepcurrents.geometry.topology import border_edges
 
 log = logging.getLogger(__name__)
 
@@ -187,10 +188,7 @@ def _snap_values(faces: np.ndarray, values: np.ndarray, snap: float) -> np.ndarr
 
 def _pinched_vertices(faces: np.ndarray) -> np.ndarray:
     """Vertices where a triangle mesh is pinched: more than two border edges meet there. (F, 3) → (K,)."""
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    uniq, count = np.unique(edges, axis=0, return_counts=True)
-    border = uniq[count == 1].ravel()
-    ids, deg = np.unique(border, return_counts=True)
+    ids, deg = np.unique(border_edges(faces).ravel(), return_counts=True)
     return ids[deg > 2]
 
 
