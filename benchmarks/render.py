@@ -24,11 +24,11 @@ import torch
 from deepcurrents.cli.render import PRESETS
 from deepcurrents.eval.render import (
     DensitySettings,
-    _box_intersection,
     fit_camera,
     proposal_grid,
     render_current,
 )
+from deepcurrents.eval.render.volume import _box_intersection
 from deepcurrents.geometry import trefoil
 from deepcurrents.nn import NeuralCurrent
 

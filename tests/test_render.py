@@ -15,15 +15,14 @@ from deepcurrents.eval.plots import normal_colors
 from deepcurrents.eval.render import (
     Camera,
     DensitySettings,
-    _sample_along,
     ffmpeg_executable,
     proposal_grid,
     render_current,
     render_current_2d,
-    render_turntable,
     save_gif,
     save_mp4,
 )
+from deepcurrents.eval.render.volume import _sample_along
 from deepcurrents.geometry import circle
 from deepcurrents.nn import NeuralCurrent
 
@@ -171,7 +170,10 @@ def test_bad_cameras_say_so_in_one_sentence():
 def test_turntable_has_the_requested_frames(tmp_path):
     disk = AnalyticDisk(normal=(1.0, 0.0, 1.0))
     camera = Camera(azimuth=0.0, elevation=20.0, distance=3.0, width=16, height=12)
-    frames = render_turntable(disk, camera, frames=5, grid=8, samples=6)
+    cameras = camera.turntable(5)
+    assert [c.azimuth for c in cameras] == [0.0, 72.0, 144.0, 216.0, 288.0]
+    grid = proposal_grid(disk, 8)  # one proposal grid for every frame
+    frames = [render_current(disk, c, grid=grid, samples=6).over() for c in cameras]
     assert len(frames) == 5 and all(f.shape == (12, 16, 3) and f.dtype == np.uint8 for f in frames)
     assert not np.array_equal(frames[0], frames[1])  # the camera moved
     gif = save_gif(frames, tmp_path / "t.gif")
@@ -184,7 +186,7 @@ def test_turntable_has_the_requested_frames(tmp_path):
 
         assert imageio_ffmpeg.count_frames_and_secs(str(mp4))[0] == 5
     with pytest.raises(ConfigError, match="frames"):
-        render_turntable(disk, camera, frames=0)
+        camera.turntable(0)
 
 
 def test_2d_picture_draws_the_metric_as_oriented_ellipses(tmp_path):

@@ -13,8 +13,8 @@ from omegaconf import DictConfig
 
 from deepcurrents.cli.common import output_dir
 from deepcurrents.errors import positive_int
-from deepcurrents.eval.mesh_grid import plot_mesh_grid
 from deepcurrents.eval.metrics import mesh_summary
+from deepcurrents.eval.plots import plot_mesh_grid
 from deepcurrents.geometry.curves import write_curve_file
 from deepcurrents.models.autodecoder import AutodecoderModule
 from deepcurrents.models.loading import load_module, resolve_device

@@ -157,8 +157,7 @@ def render_checkpoint(cfg: DictConfig) -> list:
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     if cfg.turntable:
         frames = []
-        for k in range(cfg.frames):
-            cam = camera.orbit(camera.azimuth + 360.0 * k / cfg.frames)
+        for k, cam in enumerate(camera.turntable(cfg.frames)):
             frames.append(render_current(current, cam, **kwargs).over(cfg.background))
             log.info("frame %d/%d", k + 1, cfg.frames)
         written.append(save_gif(frames, out / f"{cfg.name}_turntable.gif", cfg.fps))
@@ -174,8 +173,7 @@ def render_checkpoint(cfg: DictConfig) -> list:
         result = extract_surface(current, **mesh_settings(module, cfg.shape, resolution=cfg.resolution))
         title = f"area {result.mesh.area:.4f}"
         if cfg.turntable:
-            frames = [render_mesh(result.mesh, loops, camera.orbit(camera.azimuth + 360.0 * k / cfg.frames))
-                      for k in range(cfg.frames)]
+            frames = [render_mesh(result.mesh, loops, cam) for cam in camera.turntable(cfg.frames)]
             written.append(save_gif(frames, out / f"{cfg.name}_mesh_turntable.gif", cfg.fps))
         else:
             path = out / f"{cfg.name}_mesh.png"

@@ -120,10 +120,3 @@ def unidirectional_chamfer(target_mesh: trimesh.Trimesh, mesh: trimesh.Trimesh, 
     In the units of the meshes (the paper scales them into [-0.5, 0.5]^3). ``inf`` if ``mesh`` is empty.
     """
     return float(point_mesh_distance(sample_surface(target_mesh, n, seed), mesh).mean())
-
-
-def chamfer_distance(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, n: int = 100_000,
-                     seed: int = 0) -> float:
-    """Symmetric Chamfer distance: the mean of the two unidirectional ones (each with ``n`` samples)."""
-    ab = unidirectional_chamfer(mesh_a, mesh_b, n, seed)
-    return 0.5 * (ab + unidirectional_chamfer(mesh_b, mesh_a, n, seed))

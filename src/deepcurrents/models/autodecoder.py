@@ -22,9 +22,9 @@ import numpy as np
 import torch
 
 from deepcurrents.errors import ConfigError, UserInputError
-from deepcurrents.eval.mesh_grid import plot_mesh_grid
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
+from deepcurrents.eval.plots import plot_mesh_grid
 from deepcurrents.losses import current_loss, surface_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent

@@ -21,13 +21,13 @@ import torch
 from deepcurrents.errors import positive_int
 from deepcurrents.eval.render import (
     DensitySettings,
-    current_to_view,
     fit_camera,
     proposal_grid,
     render_current,
     render_current_2d,
     save_image,
 )
+from deepcurrents.models.loading import current_to_view
 
 log = logging.getLogger(__name__)
 

@@ -3,7 +3,7 @@
 
 Apps (render, extract, evaluate, …) look at a model through :func:`viewable_current`: a module exposes the
 current to look at as its ``current`` attribute (a NeuralCurrent-like module); families give one member
-per training shape (``member``/``latent``/``shape_loops``); other kinds may define ``default_current()``.
+per training shape (``member``/``latent``/``shape_loops``); :func:`current_to_view` picks it.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from typing import Any
 import torch
 
 from deepcurrents.errors import UserInputError
-from deepcurrents.eval.render import current_to_view
 from deepcurrents.models.base import CHECKPOINT_KEY, DeepCurrentsModule
 
 
@@ -114,8 +113,25 @@ def load_module(ckpt_path: str | Path, map_location: str | torch.device | None =
     return module
 
 
+def current_to_view(module, shape: int | None = None):
+    """The current to look at in a model (duck-typed, no model classes imported): ``module.current``
+    (single currents), or for a family the member of training shape ``shape`` (default 0) with its own
+    latent code and boundary (``module.member(module.latent(i), module.shape_loops(i))``). Raises
+    ValueError when there is none."""
+    if shape is None and getattr(module, "current", None) is not None:
+        return module.current
+    if all(callable(getattr(module, name, None)) for name in ("member", "latent", "shape_loops")):
+        index = 0 if shape is None else shape
+        if callable(getattr(module, "check_shape_index", None)):
+            index = module.check_shape_index(index, "shape")
+        return module.member(module.latent(index), module.shape_loops(index))
+    if shape is not None:
+        raise ValueError(f"shape={shape} was given, but this {type(module).__name__} holds a single current")
+    raise ValueError(f"a {type(module).__name__} has neither a `current` nor family members to look at")
+
+
 def viewable_current(module: torch.nn.Module, ckpt_path: str | Path = "", shape: int | None = None):
-    """The current an app looks at (``eval.render.current_to_view``), or CheckpointError saying why not."""
+    """The current an app looks at (:func:`current_to_view`), or CheckpointError saying why not."""
     try:
         return current_to_view(module, shape)
     except ValueError as err:

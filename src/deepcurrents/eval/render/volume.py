@@ -28,19 +28,18 @@ from __future__ import annotations
 
 import logging
 import math
-import shutil
-import subprocess
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.eval.device import device_of
 from deepcurrents.eval.metrics import jump
-from deepcurrents.eval.plots import normal_colors, plot_current_2d, plot_mesh
+from deepcurrents.eval.plots import normal_colors
+from deepcurrents.eval.render.camera import Camera, fit_camera
 from deepcurrents.geometry.polyline import closed_loop_segments, resample_polyline
 
 log = logging.getLogger(__name__)
@@ -48,141 +47,7 @@ log = logging.getLogger(__name__)
 DOMAIN = np.array([[-1.0] * 3, [1.0] * 3])
 
 
-# ----------------------------------------------------------------------------------------------- camera
-@dataclass(frozen=True)
-class Camera:
-    """A pinhole camera orbiting ``target`` (matplotlib's convention, as ``plots.plot_mesh``: z is up, the
-    eye is at azimuth/elevation in degrees, ``distance`` away). ``fov`` is the vertical field of view."""
-
-    azimuth: float = 35.0
-    elevation: float = 25.0
-    distance: float = 3.0
-    fov: float = 35.0
-    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    width: int = 256
-    height: int = 256
-
-    def __post_init__(self):
-        for key in ("width", "height"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ConfigError(f"camera.{key}={value!r} must be a positive integer (pixels).")
-        if not 0.0 < float(self.fov) < 180.0:
-            raise ConfigError(f"camera.fov={self.fov!r} must be an angle in degrees between 0 and 180.")
-        if not (math.isfinite(float(self.distance)) and float(self.distance) > 0):
-            raise ConfigError(f"camera.distance={self.distance!r} must be a positive number.")
-
-    @property
-    def focal(self) -> float:
-        """Focal length in pixels."""
-        return 0.5 * self.height / math.tan(math.radians(self.fov) / 2)
-
-    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(eye, right, up, forward), each (3,) float64; right/up/forward orthonormal."""
-        a, e = math.radians(self.azimuth), math.radians(self.elevation)
-        back = np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
-        eye = np.asarray(self.target, dtype=np.float64) + self.distance * back
-        forward = -back
-        world_up = np.array([0.0, 0.0, 1.0])
-        if abs(forward @ world_up) > 0.999:  # looking straight down or up: the azimuth sets the image's up
-            world_up = np.array([-math.cos(a), -math.sin(a), 0.0]) * np.sign(forward[2])
-        right = np.cross(forward, world_up)
-        right /= np.linalg.norm(right)
-        up = np.cross(right, forward)
-        return eye, right, up, forward
-
-    def rays(self, device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
-        """One ray per pixel through its centre, row-major from the top-left.
-
-        → (origins (H·W, 3), unit directions (H·W, 3)), float32 on ``device``.
-        """
-        eye, right, up, forward = self.basis()
-        cols = (np.arange(self.width) + 0.5 - 0.5 * self.width) / self.focal
-        rows = (0.5 * self.height - (np.arange(self.height) + 0.5)) / self.focal
-        v, u = np.meshgrid(rows, cols, indexing="ij")
-        d = forward + u.reshape(-1, 1) * right + v.reshape(-1, 1) * up
-        d /= np.linalg.norm(d, axis=1, keepdims=True)
-        dirs = torch.as_tensor(d, dtype=torch.float32, device=device)
-        origins = torch.as_tensor(eye, dtype=torch.float32, device=device).expand_as(dirs)
-        return origins, dirs
-
-    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pixel coordinates of 3D points: (col (N,), row (N,), distance from the eye (N,)); points behind
-        the camera get NaN pixel coordinates."""
-        eye, right, up, forward = self.basis()
-        rel = np.asarray(points, dtype=np.float64) - eye
-        z = rel @ forward
-        with np.errstate(divide="ignore", invalid="ignore"):
-            zs = np.where(z > 1e-9, z, np.nan)
-            col = 0.5 * self.width + self.focal * (rel @ right) / zs - 0.5
-            row = 0.5 * self.height - self.focal * (rel @ up) / zs - 0.5
-        return col, row, np.linalg.norm(rel, axis=1)
-
-    def orbit(self, azimuth: float) -> Camera:
-        return replace(self, azimuth=float(azimuth))
-
-
-def fit_camera(points: np.ndarray, azimuth: float = 35.0, elevation: float = 25.0, fov: float = 35.0,
-               width: int = 256, height: int = 256, margin: float = 1.08, tight: bool = True) -> Camera:
-    """A camera at the given angles looking at the centre of the points' bounding box.
-
-    points: (N, 3), e.g. a box's two corners (2, 3) or the visible part of a current (ProposalGrid.frame).
-    ``tight``: as close as the points allow from these angles (stills); otherwise far enough to see their
-    bounding sphere from any angle (turntables keep one distance for every frame).
-    """
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    lo_box, hi_box = points.min(0), points.max(0)
-    center = 0.5 * (lo_box + hi_box)
-    radius = max(float(np.linalg.norm(points - center, axis=1).max()), 1e-3)
-    # half-angle of the narrower side of the image: the bounding sphere must fit in it
-    half = math.atan(math.tan(math.radians(fov) / 2) * min(1.0, width / height))
-    far = margin * radius / math.sin(half)
-    camera = Camera(azimuth, elevation, far, fov, tuple(center.tolist()), width, height)
-    if not tight:
-        return camera
-
-    def fits(distance: float) -> bool:
-        col, row, _ = replace(camera, distance=distance).project(points)
-        if not np.all(np.isfinite(col)):
-            return False
-        spread_x = np.abs(col + 0.5 - 0.5 * width).max() / width
-        spread_y = np.abs(row + 0.5 - 0.5 * height).max() / height
-        return max(spread_x, spread_y) * margin <= 0.5
-
-    lo, hi = radius * 1e-3, far  # the sphere's distance always fits; bisect down to the tightest
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
-    return replace(camera, distance=hi)
-
-
-def current_to_view(module, shape: int | None = None):
-    """The current to look at in a model (duck-typed, no model classes imported): ``module.current``
-    (single currents), or for a family the member of training shape ``shape`` (default 0) with its own
-    latent code and boundary (``module.member(module.latent(i), module.shape_loops(i))``), or
-    ``module.default_current()``. Raises ValueError when there is none."""
-    if shape is None and getattr(module, "current", None) is not None:
-        return module.current
-    if all(callable(getattr(module, name, None)) for name in ("member", "latent", "shape_loops")):
-        index = 0 if shape is None else shape
-        if callable(getattr(module, "check_shape_index", None)):
-            index = module.check_shape_index(index, "shape")
-        return module.member(module.latent(index), module.shape_loops(index))
-    if shape is not None:
-        raise ValueError(f"shape={shape} was given, but this {type(module).__name__} holds a single current")
-    if callable(getattr(module, "default_current", None)):
-        return module.default_current()
-    raise ValueError(f"a {type(module).__name__} has no `current` attribute or `default_current()` method")
-
-
 # ------------------------------------------------------------------------------------------ the density
-def _device(current) -> torch.device:
-    try:
-        return next(current.parameters()).device
-    except (StopIteration, AttributeError):
-        return torch.device("cpu")
-
-
 @dataclass
 class DensitySettings:
     """How |ω| becomes opacity: σ = gain · max(|ω| − floor, 0) / (jump · alpha_scale)."""
@@ -245,7 +110,7 @@ def _grid_points(bounds: np.ndarray, resolution: int) -> tuple[np.ndarray, tuple
 @torch.no_grad()
 def _omega_norm_grid(current, bounds: np.ndarray, resolution: int, chunk_size: int):
     pts, shape = _grid_points(bounds, resolution)
-    x = torch.as_tensor(pts, dtype=torch.float32, device=_device(current))
+    x = torch.as_tensor(pts, dtype=torch.float32, device=device_of(current))
     _, omega = current.evaluate(x, chunk_size=chunk_size)
     vol = omega.norm(dim=-1).reshape(shape)
     dilated = F.max_pool3d(vol[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
@@ -449,7 +314,7 @@ def render_current(
     if camera is None:
         camera = fit_camera(grid.framing_points())
     h, w = camera.height, camera.width
-    dev = _device(current)
+    dev = device_of(current)
     origins, dirs = camera.rays(dev)
     if grid.support is None:
         log.warning("The current is empty (|ω| < %.3g everywhere): the image is blank.", settings.floor)
@@ -504,125 +369,3 @@ def draw_curves(image: Rendering, camera: Camera, loops: Sequence[np.ndarray], w
     image.color[:] = (1 - weight[..., None]) * image.color + weight[..., None] * c
     image.alpha[:] = (1 - weight) * image.alpha + weight
 
-
-# ------------------------------------------------------------------------------- turntables and files
-@torch.no_grad()
-def render_turntable(current, camera: Camera | None = None, frames: int = 36, grid: ProposalGrid | int = 48,
-                     settings: DensitySettings | None = None, background=(1.0, 1.0, 1.0), **kwargs
-                     ) -> list[np.ndarray]:
-    """``frames`` renders at evenly spaced azimuths (one proposal grid for all) → list of (H, W, 3) uint8."""
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        raise ConfigError(f"frames={frames!r} must be a positive integer.")
-    settings = settings or DensitySettings()
-    if not isinstance(grid, ProposalGrid):
-        grid = proposal_grid(current, int(grid), settings, chunk_size=kwargs.get("chunk_size", 1 << 15))
-    if camera is None:
-        camera = fit_camera(grid.framing_points(), tight=False)
-    out = []
-    for k in range(frames):
-        cam = camera.orbit(camera.azimuth + 360.0 * k / frames)
-        out.append(render_current(current, cam, grid=grid, settings=settings, **kwargs).over(background))
-    return out
-
-
-def save_image(image: np.ndarray, path: str | Path) -> Path:
-    """Writes an (H, W, 3|4) uint8 array as PNG (or any format imageio knows from the suffix)."""
-    import imageio.v3 as iio
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, image)
-    return path
-
-
-def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: float = 12.0) -> Path:
-    """An endlessly looping GIF of (H, W, 3) uint8 frames."""
-    import imageio.v3 as iio
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    iio.imwrite(path, np.stack(frames), extension=".gif", duration=1000.0 / fps, loop=0)
-    return path
-
-
-def ffmpeg_executable() -> str | None:
-    """The ffmpeg binary: imageio-ffmpeg's (the ``media`` extra) or one on PATH; None if there is none."""
-    try:
-        import imageio_ffmpeg
-
-        return imageio_ffmpeg.get_ffmpeg_exe()
-    except (ImportError, RuntimeError):
-        return shutil.which("ffmpeg")
-
-
-def save_mp4(frames: Sequence[np.ndarray], path: str | Path, fps: float = 24.0) -> Path | None:
-    """An H.264 MP4 of (H, W, 3) uint8 frames through ffmpeg; None (and a log line) where ffmpeg is absent."""
-    exe = ffmpeg_executable()
-    if exe is None:
-        log.info("ffmpeg not found (pip install 'deepcurrents[media]'); no MP4 written.")
-        return None
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    h, w = frames[0].shape[:2]
-    cmd = [exe, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
-           "-r", str(fps), "-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p",
-           "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", str(path)]  # yuv420p needs even sizes
-    data = np.ascontiguousarray(np.stack(frames)[..., :3]).tobytes()
-    result = subprocess.run(cmd, input=data, capture_output=True)
-    if result.returncode != 0:
-        log.warning("ffmpeg failed (%s); no MP4 written.", result.stderr.decode(errors="replace").strip())
-        return None
-    return path
-
-
-# ------------------------------------------------------------------------------ meshes and 2D pictures
-def render_mesh(mesh, loops: Sequence[np.ndarray] | None = None, camera: Camera | None = None,
-                path: str | Path | None = None, title: str | None = None) -> np.ndarray:
-    """A plain shaded mesh picture (``plots.plot_mesh``) seen from the camera's angles → (H, W, 3) uint8.
-
-    matplotlib's 3D view is orthographic-ish and fits the data: only the angles and the size are used.
-    """
-    import matplotlib.pyplot as plt
-
-    camera = camera or Camera()
-    size = max(camera.width, camera.height) / 120.0
-    fig = plot_mesh(mesh, list(loops or []), None, title=title, elev=camera.elevation, azim=camera.azimuth,
-                    size=size)
-    fig.canvas.draw()
-    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
-    if path is not None:
-        fig.savefig(path)
-    plt.close(fig)
-    return image
-
-
-@torch.no_grad()
-def render_current_2d(current, path: str | Path | None = None, curves: list[np.ndarray] | None = None,
-                      metric_fn=None, show_alpha: bool = True, resolution: int = 201, arrows: int = 21,
-                      title: str | None = None, chunk_size: int = 1 << 15):
-    """Paper Fig. 3 for a 2D current: f as a density plot, α as arrows (``show_alpha``), the metric as
-    ellipses (when ``metric_fn(x (N, 2)) -> B (N, 2, 2) or weights (N,)`` is given), the curve and the
-    boundary points (red where the curve ends, blue where it starts).
-
-    ``curves`` default: ``eval.meshing.extract_curve_2d(current)``. → the matplotlib Figure (closed if saved).
-    """
-    from deepcurrents.eval.meshing import extract_curve_2d
-
-    dev = _device(current)
-    g = torch.linspace(-1, 1, resolution, device=dev)
-    grid = torch.stack(torch.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
-    f = current.evaluate(grid, chunk_size=chunk_size, omega=False).reshape(resolution, resolution)
-    f = f.cpu().numpy()
-    c = torch.linspace(-1, 1, arrows + 2, device=dev)[1:-1]  # interior nodes: α is singular at no edge
-    coarse = torch.stack(torch.meshgrid(c, c, indexing="ij"), -1).reshape(-1, 2)
-    alpha = current.alpha(coarse).reshape(arrows, arrows, 2).cpu().numpy() if show_alpha else None
-    metric = None
-    if metric_fn is not None:
-        b = torch.as_tensor(metric_fn(coarse))
-        if b.dim() == 1:  # scalar weights w: B = w I
-            b = b[:, None, None] * torch.eye(2, dtype=b.dtype, device=b.device)
-        metric = b.reshape(arrows, arrows, 2, 2).detach().cpu().double().numpy()
-    if curves is None:
-        curves = extract_curve_2d(current)
-    return plot_current_2d(f, alpha, curves, current.poles.cpu().numpy(), current.signs.cpu().numpy(), path,
-                           title=title, metric_grid=metric, grid_extent=float(c[-1]))
