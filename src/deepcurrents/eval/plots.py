@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -21,6 +22,27 @@ def normal_colors(normals: np.ndarray) -> np.ndarray:
     return np.clip(0.5 * (n + 1.0), 0.0, 1.0)
 
 
+@dataclass(frozen=True)
+class MeshView:
+    """What a ``plot_mesh`` picture shows: the view direction (matplotlib's elevation and azimuth in degrees,
+    z up) and the cube ``center ± radius`` it frames. Pictures meant to be compared share one."""
+
+    elev: float = 25.0
+    azim: float = 35.0
+    center: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    radius: float = 1.0
+
+
+def mesh_view(points: Sequence[np.ndarray], elev: float = 25.0, azim: float = 35.0, margin: float = 1.0) -> MeshView:
+    """The view framing point sets (each (N_i, 3): a mesh's vertices, Γ's loops, a target): centred on
+    their mean, half-side 0.55 × their largest extent × ``margin``."""
+    pts = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in points])
+    if len(pts) == 0:
+        return MeshView(elev, azim)
+    radius = 0.55 * float((pts.max(0) - pts.min(0)).max()) * margin
+    return MeshView(float(elev), float(azim), tuple(float(c) for c in pts.mean(0)), radius)
+
+
 def plot_mesh(
     mesh: trimesh.Trimesh,
     loops: list[np.ndarray] | None = None,
@@ -30,8 +52,13 @@ def plot_mesh(
     azim: float = 35.0,
     size: float = 5.0,
     max_faces: int = 60000,
+    view: MeshView | None = None,
 ):
-    """A shaded mesh coloured by its normals (the current's direction) with Γ drawn in black. → Figure."""
+    """A shaded mesh coloured by its normals (the current's direction) with Γ drawn in black. → Figure.
+
+    ``view``: the view direction and framing (``mesh_view``); default: ``elev``/``azim``, framed on the
+    mesh's vertices and Γ.
+    """
     fig = plt.figure(figsize=(size, size), dpi=120)
     ax = fig.add_subplot(projection="3d")
     if len(mesh.faces):
@@ -44,17 +71,18 @@ def plot_mesh(
         shade = 0.55 + 0.45 * np.abs(m.face_normals @ light)
         colors = normal_colors(m.face_normals) * shade[:, None]
         ax.add_collection3d(Poly3DCollection(m.triangles, facecolors=colors, edgecolors="none"))
-    pts = [np.asarray(mesh.vertices)] if len(mesh.vertices) else []
     for loop in loops or []:
         closed = np.concatenate([loop, loop[:1]])
         ax.plot(*closed.T, color="black", linewidth=1.5)
-        pts.append(loop)
-    if pts:
-        allp = np.concatenate(pts)
-        c, r = allp.mean(0), 0.55 * (allp.max(0) - allp.min(0)).max()
+    if view is None:
+        pts = ([np.asarray(mesh.vertices)] if len(mesh.vertices) else []) + list(loops or [])
+        view = mesh_view(pts, elev, azim) if pts else None
+    if view is not None:
+        c, r = view.center, view.radius
         ax.set_xlim(c[0] - r, c[0] + r)
         ax.set_ylim(c[1] - r, c[1] + r)
         ax.set_zlim(c[2] - r, c[2] + r)
+        elev, azim = view.elev, view.azim
     ax.view_init(elev=elev, azim=azim)
     ax.set_box_aspect((1, 1, 1), zoom=1.6)  # the axes cube is hidden: let the shape fill the frame
     ax.set_axis_off()

@@ -17,7 +17,7 @@ import trimesh
 
 from deepcurrents.errors import ConfigError, NonFiniteLossError, positive_int
 from deepcurrents.eval.metrics import mesh_summary
-from deepcurrents.eval.plots import plot_mesh
+from deepcurrents.eval.plots import MeshView, plot_mesh
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
 
 CHECKPOINT_KEY = "deepcurrents"
@@ -129,14 +129,19 @@ class DeepCurrentsModule(L.LightningModule):
         (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
         return metrics
 
-    @staticmethod
-    def write_mesh(out_dir: str | Path, result: Any, loops: list[np.ndarray], title: str,
+    def picture_view(self, loops: list[np.ndarray]) -> MeshView | None:
+        """The view of this model's mesh pictures (``eval.plots.mesh_view``); None frames each picture on
+        its own mesh and Γ. Kinds whose pictures are compared with another (a reconstruction beside its
+        target) return one view for both."""
+        return None
+
+    def write_mesh(self, out_dir: str | Path, result: Any, loops: list[np.ndarray], title: str,
                    export: trimesh.Trimesh | None = None) -> dict[str, Any]:
-        """``mesh.ply`` and ``mesh.png`` of a meshing result (a ``MeshingResult`` or a mesh) with its
-        boundary ``loops``. ``export``: the mesh to write instead (e.g. in the input's coordinates).
-        → its summary (``eval.metrics.mesh_summary``)."""
+        """``mesh.ply`` and ``mesh.png`` (seen as ``picture_view`` says) of a meshing result (a
+        ``MeshingResult`` or a mesh) with its boundary ``loops``. ``export``: the mesh to write instead (e.g.
+        in the input's coordinates). → its summary (``eval.metrics.mesh_summary``)."""
         out_dir = Path(out_dir)
         mesh = getattr(result, "mesh", result)
         (export if export is not None else mesh).export(out_dir / "mesh.ply")
-        plot_mesh(mesh, loops, out_dir / "mesh.png", title=title)
+        plot_mesh(mesh, loops, out_dir / "mesh.png", title=title, view=self.picture_view(loops))
         return mesh_summary(result, loops)

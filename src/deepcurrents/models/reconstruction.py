@@ -13,9 +13,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from deepcurrents.errors import ConfigError
-from deepcurrents.eval.meshing import region_of_interest
+from deepcurrents.eval.meshing import flux_sign, region_of_interest
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface, unidirectional_chamfer
-from deepcurrents.eval.plots import plot_mesh
+from deepcurrents.eval.plots import MeshView, mesh_view, plot_mesh
 from deepcurrents.losses import current_loss, surface_loss
 from deepcurrents.models.current_module import CurrentModule
 
@@ -142,6 +142,13 @@ class ReconstructionModule(CurrentModule):
             return None
         return region_of_interest([self.target_a.cpu().numpy()], padding)
 
+    def picture_view(self, loops: list[np.ndarray]) -> MeshView | None:
+        """``mesh.png`` and ``target.png`` share one view, framed on the target and Γ (a mesh with debris
+        far from the target would otherwise zoom out, and a torn one zoom in)."""
+        if not len(self.target_a):
+            return None
+        return mesh_view([TargetGeometry.points(self), *loops])
+
     def mesh_options(self) -> dict[str, Any]:
         options = super().mesh_options()
         if options.get("bounds") is None:
@@ -167,6 +174,11 @@ class ReconstructionModule(CurrentModule):
         metrics["target"] = self.target_source
         target = TargetGeometry.mesh(self)
         if target is not None:
+            # beside mesh.png: the same view, and faces oriented along the current as the extracted mesh's
+            # are (ω runs against the target's Stokes normals, so its own orientation would show the
+            # complementary colours, as if seen from behind)
             loops = [lp.cpu().double().numpy() for lp in self.current.loops]
-            plot_mesh(target, loops, out_dir / "target.png", title="target")
+            if flux_sign(self.current, np.asarray(target.vertices), np.asarray(target.faces)) < 0:
+                target = trimesh.Trimesh(target.vertices, np.asarray(target.faces)[:, ::-1], process=False)
+            plot_mesh(target, loops, out_dir / "target.png", title="target", view=self.picture_view(loops))
         return self.write_metrics(out_dir, metrics)

@@ -1,0 +1,85 @@
+"""Pictures meant to be compared share one view: a reconstruction's mesh.png and target.png are drawn from
+the same direction, framing the same cube, with faces oriented the same way (along the current), so that
+the two colourings (normal → RGB) compare."""
+
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import trimesh
+from conftest import QUIET_CPU, compose_cfg, spherical_cap
+
+from deepcurrents.data.targets import mesh_boundary_loops
+from deepcurrents.eval import plots
+from deepcurrents.eval.meshing import flux_sign
+from deepcurrents.experiments.runner import train
+from deepcurrents.models import base, reconstruction
+
+
+def test_plot_mesh_frames_the_view_it_is_given():
+    tet = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    view = plots.mesh_view([np.asarray(tet.vertices), np.array([[2.0, 0.0, 0.0]])], elev=10.0, azim=-70.0)
+    # the mean of the five points, half-side 0.55 × the largest extent (x from 0 to 2)
+    np.testing.assert_allclose(view.center, [0.6, 0.2, 0.2])
+    assert abs(view.radius - 0.55 * 2.0) < 1e-12
+    fig = plots.plot_mesh(tet, None, None, view=view)
+    ax = fig.axes[0]
+    assert (ax.elev, ax.azim) == (10.0, -70.0)
+    for lim, c in zip((ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()), view.center, strict=True):
+        np.testing.assert_allclose(lim, (c - view.radius, c + view.radius))
+    plt.close(fig)
+    # without a view the picture frames its own mesh and loops, as before
+    fig = plots.plot_mesh(tet, [np.array([[2.0, 0.0, 0.0], [2.0, 0.1, 0.0], [2.0, 0.0, 0.1]])], None)
+    ax = fig.axes[0]  # seven points: mean (1, 1.1/7, 1.1/7), largest extent 2 (x)
+    np.testing.assert_allclose(ax.get_xlim3d(), (1 - 1.1, 1 + 1.1))
+    np.testing.assert_allclose(ax.get_ylim3d(), (1.1 / 7 - 1.1, 1.1 / 7 + 1.1))
+    assert (ax.elev, ax.azim) == (25.0, 35.0)
+    plt.close(fig)
+
+
+def test_reconstruction_mesh_and_target_pictures_share_one_view(tmp_path, cap_file, monkeypatch):
+    drawn = {}
+    real = plots.plot_mesh
+
+    def recording(mesh, loops=None, path=None, title=None, **kwargs):
+        fig = real(mesh, loops, None, title, **kwargs)
+        ax = fig.axes[0]
+        drawn[Path(path).name] = {"mesh": mesh, "view": (ax.elev, ax.azim),
+                                  "box": np.array([ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()])}
+        fig.savefig(path)
+        plt.close(fig)
+        return fig
+
+    monkeypatch.setattr(base, "plot_mesh", recording)
+    monkeypatch.setattr(reconstruction, "plot_mesh", recording)
+    # two steps from ω ≈ α (the network's output starts at zero); the phase meshes the rim's spanning surface
+    cfg = compose_cfg(["experiment=recon_mesh", f"data.mesh={cap_file}", *QUIET_CPU, "data.num_workers=0",
+                       "trainer.max_steps=2", "data.num_samples=64", "data.num_surface_samples=64",
+                       "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=1",
+                       "evaluation.mass_samples=2048", "evaluation.ucd_samples=2000",
+                       "evaluation.mesh.resolution=24", "evaluation.mesh.method=phase"])
+    train(cfg, out_dir=tmp_path)
+    assert {"mesh.png", "target.png"} <= set(drawn) and (tmp_path / "target.png").is_file()
+    mesh, target = drawn["mesh.png"], drawn["target.png"]
+    assert len(mesh["mesh"].faces) > 0
+    # one direction, one cube
+    assert mesh["view"] == target["view"]
+    np.testing.assert_array_equal(mesh["box"], target["box"])
+    # the cube frames the target and Γ (its rim), not whatever was extracted: mean of both point sets,
+    # half-side 0.55 × their largest extent
+    cap = spherical_cap()
+    pts = np.concatenate([cap.vertices, *mesh_boundary_loops(cap.vertices, cap.faces)])
+    half = 0.55 * float((pts.max(0) - pts.min(0)).max())
+    np.testing.assert_allclose(mesh["box"].mean(1), pts.mean(0), atol=1e-6)
+    np.testing.assert_allclose(mesh["box"][:, 1] - mesh["box"][:, 0], 2 * half, rtol=1e-6)
+    # both drawn along the current: for ω ≈ α that is against the target's own (Stokes) normals
+    from deepcurrents.models.loading import load_module
+
+    current = load_module(tmp_path / "checkpoints" / "last.ckpt").current
+    for picture in (mesh, target):
+        m = picture["mesh"]
+        assert flux_sign(current, np.asarray(m.vertices), np.asarray(m.faces)) > 0
+    drawn_target = target["mesh"]
+    assert isinstance(drawn_target, trimesh.Trimesh) and len(drawn_target.faces) == len(cap.faces)
+    outward = (drawn_target.face_normals * drawn_target.triangles_center).sum(1)
+    assert (outward < 0).all()  # the cap's outward normals, reversed
