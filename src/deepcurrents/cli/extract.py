@@ -1,8 +1,9 @@
 """The surface of any 3D checkpoint as a mesh at any resolution:
 ``python -m deepcurrents.extract ckpt_path=…/last.ckpt resolution=256 [format=obj]``.
 
-Uses the run's own meshing settings (``evaluation.mesh``: level set of f at Γ's mean value, |ω| cut,
-tube closed onto Γ; see ``eval.meshing.extract_surface``); any of them can be overridden here.
+Uses the run's own meshing settings (``evaluation.mesh``: the method, by default the current's phase for
+minimal surfaces and the grid and the paper's level set f = s for reconstructions and families; the |ω|
+cut; the tube closed onto Γ; see ``eval.meshing``); any of them can be overridden here.
 Writes ``mesh_r<resolution>.<format>`` (+ a picture) in a folder named after the checkpoint beside it.
 """
 
