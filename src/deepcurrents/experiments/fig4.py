@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import trimesh  # noqa: E402
 
-from deepcurrents.eval.plots import plot_mesh  # noqa: E402
+from deepcurrents.eval.plots import mesh_view, plot_mesh  # noqa: E402
 from deepcurrents.experiments.tables import write_table  # noqa: E402
 
 log = logging.getLogger(__name__)
@@ -71,13 +71,7 @@ def load_member(result: dict[str, Any]) -> dict[str, Any]:
 
 def render_panel(mesh: trimesh.Trimesh, loops: list[np.ndarray], title: str, size: float = 4.0) -> np.ndarray:
     """One mesh by ``plot_mesh``, framed by Γ alone (so both methods share the camera) → RGB image."""
-    fig = plot_mesh(mesh, loops, path=None, title=title, size=size)
-    ax = fig.axes[0]
-    pts = np.concatenate(loops)
-    c, r = pts.mean(0), 0.55 * float((pts.max(0) - pts.min(0)).max()) * 1.15
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[1] - r, c[1] + r)
-    ax.set_zlim(c[2] - r, c[2] + r)
+    fig = plot_mesh(mesh, loops, path=None, title=title, size=size, view=mesh_view(loops, margin=1.15))
     fig.canvas.draw()
     image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     plt.close(fig)
