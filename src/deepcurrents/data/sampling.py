@@ -133,9 +133,30 @@ class AmbientSampler:
 def sampling_options(sampling: dict | None) -> dict:
     """``data.sampling`` checked (unknown keys named). → keyword arguments of AmbientSampler (without dim)."""
     sampling = dict(sampling or {})
-    unknown = set(sampling) - {"kind", "resolution", "uniform_fraction", "power"}
+    unknown = set(sampling) - {"kind", "resolution", "uniform_fraction", "power", "pool"}
     if unknown:
         raise ConfigError(f"data.sampling has unknown keys {sorted(unknown)}; it takes kind, resolution, "
-                          "uniform_fraction and power.")
+                          "uniform_fraction, power and pool.")
+    pool = sampling.get("pool") or 0
+    if isinstance(pool, bool) or not isinstance(pool, int) or pool < 0:
+        raise ConfigError(f"data.sampling.pool={pool!r} must be a non-negative integer (0: fresh samples).")
+    sampling["pool"] = pool
     return sampling
+
+
+def sample_pool(sampler: AmbientSampler, size: int, field: Callable[[torch.Tensor], torch.Tensor],
+                chunk: int = 1 << 14) -> dict[str, torch.Tensor]:
+    """``size`` samples drawn once with ``field`` (e.g. the unscaled α_Γ) evaluated at them, so that training
+    steps draw batches from this pool and never evaluate the field (α is fixed for a fixed Γ).
+    → {"x": (size, dim), "alpha": (size, k)[, "weight": (size,)]}."""
+    batch = sampler.sample(size)
+    with torch.no_grad():
+        batch["alpha"] = torch.cat([field(c) for c in torch.split(batch["x"], chunk)])
+    return batch
+
+
+def pool_batch(pool: dict[str, torch.Tensor], n: int, generator: torch.Generator) -> dict[str, torch.Tensor]:
+    """n rows of a pool drawn uniformly with replacement (so weights stay those of the pool's density)."""
+    idx = torch.randint(pool["x"].shape[0], (n,), generator=generator)
+    return {k: v[idx] for k, v in pool.items()}
 

@@ -84,8 +84,10 @@ class NeuralCurrent(nn.Module):
             field = biot_savart_2d(x, self.poles, self.signs)
         return self.alpha_scale * field
 
-    def forward(self, x: torch.Tensor, create_graph: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor, create_graph: bool = True,
+                alpha: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(f, ω) at points x: (N, d) → ((N,), (N, d)). ``create_graph`` for training (double backward).
+        ``alpha`` (N, d): the unscaled α_Γ(x) if already known (a sample pool), else computed here.
 
         ∇f is taken by autograd through the MLP to its input features, then through the Fourier features
         by their closed-form Jacobian (same numbers as autograd all the way, fewer elementwise passes).
@@ -104,7 +106,7 @@ class NeuralCurrent(nn.Module):
                 grad_f = spatial_gradient(f, x_in, create_graph=create_graph)
         if not create_graph:
             f, grad_f = f.detach(), grad_f.detach()
-        return f, grad_f + self.alpha(x)
+        return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
 
     @torch.no_grad()
     def evaluate(self, x: torch.Tensor, chunk_size: int = 1 << 15, omega: bool = True):

@@ -1,0 +1,298 @@
+"""Time to quality: several training recipes side by side in one process, quality against wall-clock seconds.
+
+    python benchmarks/time_to_quality.py --seconds 180 --curves circle05 ellipse tilted_square \\
+        --recipes paper cpu fast [--heldout enneper05 tilted_circle04] [--mesh]
+
+Each recipe trains each curve through the real code path (Hydra configs, the DataModule and LightningModule of
+``train.py``, Lightning with ``trainer.max_time``), one after another in this process; the recipe order turns
+with every curve so that a change of machine load does not always hit the same recipe. During training a
+callback copies the weights at geometric times (T/64, …, T/2, T); copying is the only work inside the timed
+region. Afterwards, outside it, every copy is scored:
+
+- ``mass_area / exact``: the mass bound E|ω| · vol(U) / (4π·alpha_scale), estimated with UNIFORM samples
+  (``--mass-samples``, 2^16 by default; the final copy 4× more) whatever the recipe sampled while training, so
+  it stays an upper bound of the exact minimal area up to its standard error;
+- with ``--mesh``, the final copy's phase mesh area against the exact area.
+
+Curves with exact minimal areas (polygon areas for planar polygons, closed forms otherwise):
+``circle05`` (R = 0.5, 200 vertices), ``tilted_square`` and ``ellipse`` (examples/curves), and the held-out
+curves, never used for tuning the fast recipe: ``enneper05`` (Enneper's surface cut at r = 0.5, non-planar,
+area π(r² + r⁴ + r⁶/3)) and ``tilted_circle04`` (R = 0.4, off-centre, normal (1, 2, 2)).
+
+Writes ``benchmarks/results/time_to_quality.csv`` (one row per copy), ``time_to_quality.png`` (mass_area /
+exact against seconds, log axes, one line per recipe, one panel per curve) and ``time_to_quality.json``, and
+prints the seconds each recipe needs to reach ``--threshold`` as ratios to the first recipe. Recipes are
+Hydra overrides; ``--recipe name=override,override`` adds one (e.g. ``--recipe lr3e3=preset=cpu,model.optim.lr=3e-3``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import json
+import math
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+
+from deepcurrents.eval.meshing import extract_surface
+from deepcurrents.eval.metrics import mass_to_area
+from deepcurrents.experiments.config import trainer_overrides, validate_config
+from deepcurrents.experiments.runner import build, instantiate
+from deepcurrents.geometry import circle, load_boundary
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+
+# The authors' recipe: their network and sampling (preset=paper), lr 5e-4 with × 0.6 every 1e4 steps, and
+# PyTorch's default initialisation of the last layer (their code's).
+RECIPES: dict[str, list[str]] = {
+    "paper": ["preset=paper", "model.net.zero_init_output=false"],
+    "cpu": ["preset=cpu"],
+    "fast": ["preset=cpu", "recipe=fast"],
+}
+
+
+def polygon_area(points: np.ndarray) -> float:
+    """Area of a planar polygon in 3D (vector area's norm). (n, 3) → float."""
+    p = np.asarray(points, dtype=np.float64)
+    return 0.5 * float(np.linalg.norm(np.cross(p, np.roll(p, -1, axis=0)).sum(0)))
+
+
+def enneper(r: float, n: int = 200) -> np.ndarray:
+    """Enneper's surface's border at polar radius r: (r cos t − r³/3 cos 3t, −r sin t − r³/3 sin 3t, r² cos 2t)."""
+    t = 2 * np.pi * np.arange(n) / n
+    return np.stack([r * np.cos(t) - r**3 / 3 * np.cos(3 * t), -r * np.sin(t) - r**3 / 3 * np.sin(3 * t),
+                     r**2 * np.cos(2 * t)], -1)
+
+
+def curves(tmp: Path) -> dict[str, tuple[str, float]]:
+    """name → (curve file, exact minimal area)."""
+    out: dict[str, tuple[str, float]] = {}
+    c05 = circle(0.5, n=200)
+    np.savetxt(tmp / "circle05.txt", c05)
+    out["circle05"] = (str(tmp / "circle05.txt"), polygon_area(c05))
+    for name in ("tilted_square.obj", "ellipse.txt"):
+        path = ROOT / "examples" / "curves" / name
+        (loop,) = load_boundary(str(path)).loops
+        out[Path(name).stem] = (str(path), polygon_area(loop))
+    e = enneper(0.5)
+    np.savetxt(tmp / "enneper05.txt", e)
+    out["enneper05"] = (str(tmp / "enneper05.txt"), math.pi * (0.5**2 + 0.5**4 + 0.5**6 / 3))
+    tc = circle(0.4, center=(0.1, -0.15, 0.05), normal=(1.0, 2.0, 2.0), n=200)
+    np.savetxt(tmp / "tilted_circle04.txt", tc)
+    out["tilted_circle04"] = (str(tmp / "tilted_circle04.txt"), polygon_area(tc))
+    return out
+
+
+class Snapshots(L.Callback):
+    """Copies the current's weights when the training clock passes each of ``times`` (seconds), and at the end.
+    Records steps, training seconds and this process's CPU seconds (robust to other users' load)."""
+
+    def __init__(self, times: list[float], wall0: float, cpu0: float):
+        self.times = sorted(times)
+        self.copies: list[dict] = []
+        self.wall0, self.cpu0 = wall0, cpu0  # clocks read before the run was built (setup counts)
+
+    def _copy(self, trainer, pl_module):
+        self.copies.append({"steps": int(trainer.global_step), "train_seconds": pl_module.elapsed_train_seconds(),
+                            "seconds": time.perf_counter() - self.wall0, "cpu_seconds": time.process_time() - self.cpu0,
+                            "state": copy.deepcopy(pl_module.current.state_dict())})
+
+    def on_train_batch_end(self, trainer, pl_module, *args):
+        if self.times and pl_module.elapsed_train_seconds() >= self.times[0]:
+            self.times = [t for t in self.times if t > pl_module.elapsed_train_seconds()]
+            self._copy(trainer, pl_module)
+
+    def on_train_end(self, trainer, pl_module):
+        self._copy(trainer, pl_module)
+
+
+def compose_cfg(overrides: list[str]):
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
+        return compose(config_name="train", overrides=overrides)
+
+
+def train_recipe(overrides: list[str], seconds: float, num_copies: int):
+    """Trains one recipe for ``seconds`` of wall clock. → (module, snapshot records)."""
+    cfg = compose_cfg([*overrides, "logger=none", "trainer=cpu", "trainer.max_steps=-1",
+                       f"trainer.max_time={seconds}", "trainer.enable_progress_bar=false",
+                       "trainer.enable_model_summary=false", "callbacks.model_checkpoint=null", "callbacks.media=null"])
+    validate_config(cfg)
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    L.seed_everything(int(cfg.seed), workers=True, verbose=False)
+    datamodule, module = build(cfg)
+    snaps = Snapshots([seconds * 2.0**-k for k in range(num_copies - 1, 0, -1)], wall0, cpu0)
+    trainer = instantiate(cfg.trainer, logger=False, callbacks=[snaps], enable_checkpointing=False,
+                          **trainer_overrides(cfg))
+    trainer.fit(module, datamodule=datamodule)
+    return module, cfg, snaps.copies
+
+
+def uniform_mass(current, x: torch.Tensor, alpha: torch.Tensor, chunk: int = 1 << 15) -> tuple[float, float]:
+    """E|ω| over the uniform samples x (N, 3) with their unscaled α (N, 3) computed once per curve (every copy
+    is scored on the same samples, so differences between copies are not sampling noise), and its standard
+    error. The same estimator as eval.metrics.mass_estimate, without recomputing α for every copy."""
+    with torch.no_grad():
+        m = torch.cat([current(xc, create_graph=False, alpha=ac)[1].norm(dim=-1).double()
+                       for xc, ac in zip(torch.split(x, chunk), torch.split(alpha, chunk), strict=True)])
+    return float(m.mean()), float(m.std() / math.sqrt(m.numel()))
+
+
+def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh_resolution: int) -> list[dict]:
+    """mass_area / exact of every copy (uniform samples; the final one 4× more), the final mesh's area."""
+    current = module.current.eval()
+    scale = mass_to_area(1.0, 3, current.alpha_scale)
+    gen = torch.Generator().manual_seed(12345)
+    x = torch.rand(4 * mass_samples, 3, generator=gen) * 2.0 - 1.0
+    with torch.no_grad():
+        alpha = torch.cat([current.alpha(c) / current.alpha_scale for c in torch.split(x, 1 << 15)])
+    rows = []
+    for i, rec in enumerate(copies):
+        current.load_state_dict(rec["state"])
+        last = i == len(copies) - 1
+        n = len(x) if last else mass_samples
+        mass, stderr = uniform_mass(current, x[:n], alpha[:n])
+        row = {k: v for k, v in rec.items() if k != "state"}
+        row.update(mass_area=mass * scale, mass_area_stderr=stderr * scale, ratio=mass * scale / exact)
+        if last and mesh:
+            t = time.perf_counter()
+            opts = {k: v for k, v in dict(cfg.evaluation.mesh).items() if k != "method"}
+            opts.update(resolution=mesh_resolution, method="phase")
+            with torch.no_grad():
+                result = extract_surface(current, **opts)
+            row.update(mesh_area=float(result.mesh.area), mesh_error=float(result.mesh.area) / exact - 1.0,
+                       mesh_seconds=time.perf_counter() - t)
+        rows.append(row)
+    return rows
+
+
+def time_to_reach(rows: list[dict], threshold: float) -> float | None:
+    """First training time (seconds) at which mass_area / exact ≤ threshold, None if never."""
+    for r in sorted(rows, key=lambda r: r["seconds"]):
+        if r["ratio"] <= threshold:
+            return r["seconds"]
+    return None
+
+
+def plot(rows: list[dict], path: Path, threshold: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(dict.fromkeys(r["curve"] for r in rows))
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
+    for ax, name in zip(axes[0], names, strict=True):
+        for recipe in dict.fromkeys(r["recipe"] for r in rows if r["curve"] == name):
+            pts = sorted((r["seconds"], r["ratio"]) for r in rows if r["curve"] == name and r["recipe"] == recipe)
+            ax.plot(*zip(*pts, strict=True), marker="o", ms=3, label=recipe)
+        ax.axhline(threshold, color="grey", lw=0.8, ls="--")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(name + (" (held out)" if any(r.get("heldout") for r in rows if r["curve"] == name) else ""))
+        ax.set_xlabel("seconds (wall clock, setup included)")
+        ax.set_ylabel("mass bound / exact area")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seconds", type=float, default=180.0, help="training budget per recipe and curve")
+    ap.add_argument("--curves", nargs="+", default=["circle05", "ellipse", "tilted_square"])
+    ap.add_argument("--heldout", nargs="*", default=[], help="curves never used for tuning (reported apart)")
+    ap.add_argument("--recipes", nargs="+", default=["paper", "cpu", "fast"])
+    ap.add_argument("--recipe", action="append", default=[], metavar="NAME=OVERRIDE,OVERRIDE",
+                    help="an extra recipe as comma-separated Hydra overrides")
+    ap.add_argument("--copies", type=int, default=7, help="weight copies per run, at T/2^k")
+    ap.add_argument("--mass-samples", type=int, default=1 << 16)
+    ap.add_argument("--mesh", action="store_true", help="mesh the final copy (phase method)")
+    ap.add_argument("--mesh-resolution", type=int, default=96)
+    ap.add_argument("--threshold", type=float, default=1.10, help="mass_area / exact to reach")
+    ap.add_argument("--out", default="time_to_quality", help="file stem under benchmarks/results/")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="torch threads (on a CPU shared with other jobs, 1 avoids threads waiting on each other)")
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+
+    recipes = dict(RECIPES)
+    for spec in args.recipe:
+        name, _, overrides = spec.partition("=")
+        recipes[name] = overrides.split(",")
+        if name not in args.recipes:
+            args.recipes.append(name)
+    unknown = [r for r in args.recipes if r not in recipes]
+    if unknown:
+        raise SystemExit(f"--recipes: unknown {unknown}; known: {sorted(recipes)} (add one with --recipe).")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        known = curves(Path(tmp))
+        order = list(args.recipes)
+        for ci, name in enumerate([*args.curves, *args.heldout]):
+            if name not in known:
+                raise SystemExit(f"unknown curve {name!r}; known: {sorted(known)}")
+            path, exact = known[name]
+            rotated = order[ci % len(order):] + order[: ci % len(order)]
+            for recipe in rotated:
+                load0 = os.getloadavg()[0]
+                module, cfg, copies = train_recipe(["experiment=minimal_curve", f"data.curve={path}",
+                                                    *recipes[recipe]], args.seconds, args.copies)
+                load1 = os.getloadavg()[0]
+                scored = score(module, cfg, copies, exact, args.mass_samples, args.mesh, args.mesh_resolution)
+                for r in scored:
+                    r.update(curve=name, recipe=recipe, exact=exact, heldout=name in args.heldout,
+                             load_before=load0, load_after=load1)
+                rows.extend(scored)
+                last = scored[-1]
+                mesh = f", mesh {last['mesh_error']:+.2%}" if "mesh_error" in last else ""
+                print(f"{name:16s} {recipe:10s} {last['steps']:6d} steps in {last['seconds']:6.1f} s "
+                      f"(cpu {last['cpu_seconds']:6.1f} s): mass/exact {last['ratio']:.4f} "
+                      f"± {last['mass_area_stderr'] / exact:.4f}{mesh}  [load {load0:.1f}→{load1:.1f}]", flush=True)
+
+    fields = ["curve", "heldout", "recipe", "steps", "seconds", "train_seconds", "cpu_seconds", "mass_area",
+              "mass_area_stderr", "exact", "ratio", "mesh_area", "mesh_error", "mesh_seconds", "load_before",
+              "load_after"]
+    with open(RESULTS / f"{args.out}.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    plot(rows, RESULTS / f"{args.out}.png", args.threshold)
+
+    print(f"\nseconds to reach mass/exact ≤ {args.threshold} (ratio to {args.recipes[0]}; '—' never reached):")
+    summary = {}
+    for name in dict.fromkeys(r["curve"] for r in rows):
+        times = {rc: time_to_reach([r for r in rows if r["curve"] == name and r["recipe"] == rc], args.threshold)
+                 for rc in args.recipes}
+        base = times[args.recipes[0]]
+        cells = []
+        for rc, t in times.items():
+            ratio = f" ({t / base:.2f}×)" if t is not None and base else ""
+            cells.append(f"{rc} {t:.1f} s{ratio}" if t is not None else f"{rc} —")
+        print(f"  {name:16s} " + ", ".join(cells))
+        summary[name] = times
+    (RESULTS / f"{args.out}.json").write_text(json.dumps({
+        "args": vars(args), "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
+        "time_to_threshold": summary, "final": [{k: r.get(k) for k in fields} for r in rows
+                                                if r is max((q for q in rows if q["curve"] == r["curve"]
+                                                             and q["recipe"] == r["recipe"]),
+                                                            key=lambda q: q["seconds"])]}, indent=2))
+    print(f"wrote {RESULTS / (args.out + '.csv')}, .png, .json")
+
+
+if __name__ == "__main__":
+    main()
