@@ -10,6 +10,7 @@ import numpy as np
 import torch
 import trimesh
 
+from deepcurrents.eval.device import device_of
 from deepcurrents.geometry.polyline import closed_loop_segments, polyline_hausdorff
 from deepcurrents.geometry.topology import border_edges
 
@@ -33,7 +34,7 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
 
     ``metric_fn(x) -> B`` (None for B = I) lets reconstruction evaluate its weighted mass the same way.
     """
-    dev = next(current.parameters()).device
+    dev = device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
     total, total_sq, done = 0.0, 0.0, 0
     while done < num_samples:
