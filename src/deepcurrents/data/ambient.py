@@ -15,9 +15,22 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import Boundary, PointBoundary, biot_savart, biot_savart_2d, load_boundary, validate_points
 
 
-def stream_seed(seed: int, rank: int, worker: int, start_step: int) -> int:
-    """A distinct, reproducible seed per (run seed, DDP rank, loader worker, resume step)."""
-    return int(np.random.SeedSequence([seed, rank, worker, start_step]).generate_state(1)[0])
+def stream_seed(seed: int, rank: int, step: int) -> int:
+    """A distinct, reproducible seed per (run seed, DDP rank, training step)."""
+    return int(np.random.SeedSequence([seed, rank, step]).generate_state(1)[0])
+
+
+def step_generators(seed: int, rank: int, start_step: int) -> Iterator[tuple[int, torch.Generator]]:
+    """(step, generator) for the batches this loader worker makes: a DataLoader over an IterableDataset takes
+    batches from its workers in turn, so worker w of W makes those of steps start_step + w + j·W. Each batch
+    has its own generator, seeded by (seed, rank, step) alone: a run resumed at step k draws exactly the
+    batches the uninterrupted run drew from step k on, whatever the number of workers."""
+    info = get_worker_info()
+    worker, workers = (info.id, info.num_workers) if info is not None else (0, 1)
+    step = start_step + worker
+    while True:
+        yield step, torch.Generator().manual_seed(stream_seed(seed, rank, step))
+        step += workers
 
 
 class AmbientSamples(IterableDataset):
@@ -25,8 +38,8 @@ class AmbientSamples(IterableDataset):
     ``sampling`` (AmbientSampler keyword arguments: Sobol points, or importance samples that also carry
     "weight": (num_samples,), 1 / (vol(U)·density), so that the weighted loss is still the uniform mean).
 
-    Each DDP rank and loader worker draws its own stream; ``start_step`` makes a resumed run continue
-    with fresh samples instead of replaying the first ones.
+    The batch of step s is a function of (seed, rank, s) (:func:`step_generators`): each DDP rank draws its
+    own samples, and a run resumed at ``start_step`` continues with the batches an uninterrupted run draws.
     """
 
     def __init__(self, dim: int, num_samples: int, seed: int = 0, rank: int = 0, start_step: int = 0,
@@ -36,15 +49,17 @@ class AmbientSamples(IterableDataset):
         self.sampling = dict(sampling or {})
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
-        info = get_worker_info()
-        worker = info.id if info is not None else 0
-        seed = stream_seed(self.seed, self.rank, worker, self.start_step)
-        if self.sampling.get("kind", "uniform") == "uniform":
-            gen = torch.Generator().manual_seed(seed)
-            while True:
+        uniform = self.sampling.get("kind", "uniform") == "uniform"
+        sampler = None if uniform else AmbientSampler(self.dim, seed=self.seed, **self.sampling)
+        for _, gen in step_generators(self.seed, self.rank, self.start_step):
+            if sampler is None:
                 yield {"x": torch.rand(self.num_samples, self.dim, generator=gen) * 2.0 - 1.0}
-        sampler = AmbientSampler(self.dim, seed=seed, **self.sampling)
-        while True:
+                continue
+            # the sampler's own streams restart at this step's seed (a fresh scrambling for Sobol)
+            step_seed = int(torch.randint(2**62, (1,), generator=gen))
+            sampler.generator = gen
+            if sampler.sobol is not None:
+                sampler.sobol = torch.quasirandom.SobolEngine(self.dim, scramble=True, seed=step_seed)
             yield sampler.sample(self.num_samples)
 
 

@@ -29,9 +29,9 @@ import numpy as np
 import torch
 import trimesh
 from scipy.spatial import cKDTree
-from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+from torch.utils.data import DataLoader, IterableDataset
 
-from deepcurrents.data.ambient import stream_seed
+from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
 from deepcurrents.data.targets import mesh_boundary_loops, reconstruction_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
@@ -202,11 +202,8 @@ class FamilySamples(IterableDataset):
         return item
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
-        info = get_worker_info()
-        worker = info.id if info is not None else 0
-        gen = torch.Generator().manual_seed(stream_seed(self.seed, self.rank, worker, self.start_step))
         n, k = len(self.shard), self.meshes_per_batch
-        while True:
+        for _, gen in step_generators(self.seed, self.rank, self.start_step):  # batch = f(seed, rank, step)
             pick = torch.randperm(n, generator=gen)[:k] if n >= k else torch.randint(n, (k,), generator=gen)
             yield collate_shapes([self.sample_mesh(int(self.shard[i]), gen) for i in pick.tolist()])
 

@@ -15,9 +15,9 @@ import lightning as L
 import numpy as np
 import torch
 import trimesh
-from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+from torch.utils.data import DataLoader, IterableDataset
 
-from deepcurrents.data.ambient import stream_seed
+from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.human_parts import dataset_path
 from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_point_sample, mesh_boundary_loops
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
@@ -147,11 +147,8 @@ class TargetSamples(IterableDataset):
         return PointCloudTarget(self.target["points"], self.target["normals"], self.loops)
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
-        info = get_worker_info()
-        worker = info.id if info is not None else 0
-        gen = torch.Generator().manual_seed(stream_seed(self.seed, self.rank, worker, self.start_step))
         target = self.build()
-        while True:
+        for _, gen in step_generators(self.seed, self.rank, self.start_step):  # batch = f(seed, rank, step)
             if self.batch_kind == "closest_point":  # the baseline: x and its closest point on Σ
                 yield closest_point_sample(target, self.num_samples, self.num_surface_samples, gen,
                                            self.near_sigma)
@@ -301,10 +298,7 @@ class CurveMetricSamples(IterableDataset):
         self.num_samples, self.seed, self.rank, self.start_step = num_samples, seed, rank, start_step
 
     def __iter__(self):
-        info = get_worker_info()
-        worker = info.id if info is not None else 0
-        gen = torch.Generator().manual_seed(stream_seed(self.seed, self.rank, worker, self.start_step))
-        while True:
+        for _, gen in step_generators(self.seed, self.rank, self.start_step):  # batch = f(seed, rank, step)
             x = torch.rand(self.num_samples, 2, generator=gen) * 2.0 - 1.0
             yield {"x": x, "metric": curve_metric_2d(x, self.curve)}
 

@@ -22,6 +22,7 @@ import trimesh  # noqa: E402
 
 from deepcurrents.eval.plots import mesh_view, plot_mesh  # noqa: E402
 from deepcurrents.experiments.tables import write_table  # noqa: E402
+from deepcurrents.models.loading import read_checkpoint  # noqa: E402
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +50,7 @@ def load_member(result: dict[str, Any]) -> dict[str, Any]:
     run_dir = Path(result["dir"])
     metrics = result.get("metrics") or {}
     method, curve = split_name(result["name"])
-    ckpt = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    ckpt = read_checkpoint(run_dir / "checkpoints" / "last.ckpt")  # tensors and plain data only
     loops = [np.asarray(lp, dtype=np.float64) for lp in ckpt["hyper_parameters"]["boundary"]["loops"]]
     mesh_path = run_dir / "mesh.ply"
     mesh = trimesh.load(mesh_path, process=False) if mesh_path.is_file() else None

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import logging
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -26,12 +27,21 @@ import hydra
 import lightning as L
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.experiments.config import trainer_overrides, validate_config
-from deepcurrents.models.checkpointing import AtomicCheckpointIO
+from deepcurrents.experiments.run_dir import (
+    RunLock,
+    check_free_space,
+    is_global_rank_zero,
+    make_run_dir,
+    resume_path,
+)
+from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint, ResumeState
 from deepcurrents.models.current_module import boundary_spec
+from deepcurrents.models.loading import check_resumable
 
 log = logging.getLogger("deepcurrents")
 
@@ -92,29 +102,46 @@ def build(cfg: DictConfig):
 def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None:
     """Trains and evaluates one run into ``out_dir`` (default: the run directory); returns its metrics
     (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (deepcurrents.experiments.tables).
+
+    Before training: the inputs are checked (one sentence on a bad one), the run directory must be writable
+    with room for the checkpoints and must not be in use by another run (a lock file, experiments.run_dir),
+    and a checkpoint to resume from (``ckpt_path=FILE|auto``) must be a DeepCurrents checkpoint of this model
+    kind and problem (models.loading.check_resumable). SIGTERM (preemption) writes ``checkpoints/last.ckpt``
+    and ends the process with status 143; ``ckpt_path=auto`` continues from it.
     """
-    out_dir = Path(out_dir) if out_dir is not None else output_dir(cfg)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if cfg.get("suite"):
-        run_suite(cfg, out_dir)
-        return None
+    out_dir = make_run_dir(Path(out_dir) if out_dir is not None else output_dir(cfg))
+    with RunLock(out_dir) if is_global_rank_zero() else nullcontext():
+        if cfg.get("suite"):
+            run_suite(cfg, out_dir)
+            return None
+        return _train_one(cfg, out_dir)
+
+
+def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     validate_config(cfg)
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     datamodule, module = build(cfg)
+    resume = resume_path(cfg.get("ckpt_path"), out_dir)
+    if resume is not None:
+        check_resumable(resume, module)
+    check_free_space(out_dir, module)
+    last = out_dir / "checkpoints" / "last.ckpt"
     trainer: L.Trainer = instantiate(
         cfg.trainer,
         logger=build_logger(cfg, out_dir),
-        callbacks=build_callbacks(cfg, out_dir),
+        callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), PreemptionCheckpoint(last)],
         plugins=[AtomicCheckpointIO()],
         default_root_dir=str(out_dir),
         **trainer_overrides(cfg),  # max_time in seconds → timedelta
     )
-    ckpt_path = cfg.get("ckpt_path")
-    if ckpt_path is not None and not Path(ckpt_path).is_file():
-        raise UserInputError(f"ckpt_path='{ckpt_path}' does not exist or is not a file.")
-    trainer.fit(module, datamodule=datamodule, ckpt_path=ckpt_path)
+    try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
+        trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
+    except SIGTERMException:
+        log.warning("Stopped by SIGTERM at step %d; %s holds it. Continue with ckpt_path=auto "
+                    "hydra.run.dir=%s.", trainer.global_step, last, out_dir)
+        raise SystemExit(143) from None
     # the final state, whatever step it ended on (periodic checkpoints may be older)
-    trainer.save_checkpoint(out_dir / "checkpoints" / "last.ckpt")
+    trainer.save_checkpoint(last, weights_only=False)
     if trainer.interrupted:
         log.warning("Training was interrupted; evaluating the model as it is.")
     if not trainer.is_global_zero:

@@ -1,14 +1,59 @@
-"""Checkpoints written atomically (temporary file + rename), so a crash never leaves a torn file."""
+"""Checkpoints: written atomically (temporary file + rename, so a crash never leaves a torn file), holding only
+tensors and plain data (so they are read with ``torch.load(..., weights_only=True)``, which never runs code
+from the file), and carrying what an exact resume needs beyond Lightning's own state (the random generators).
+
+- :class:`AtomicCheckpointIO`: Lightning's checkpoint IO with atomic writes, plain data checked on saving,
+  and safe reads on resuming (``trainer.fit(ckpt_path=…)`` and SLURM's ``hpc_ckpt_*.ckpt`` both read here).
+- :class:`ResumeState`: a callback saving the global random generators (torch, CUDA, numpy, Python) in every
+  checkpoint and restoring them before the first step of a resumed run.
+- :class:`PreemptionCheckpoint`: a callback writing ``last.ckpt`` when the run is stopped by SIGTERM (SLURM
+  preemption, ``scancel``) so that a requeued job continues from the step it reached.
+"""
 
 from __future__ import annotations
 
+import logging
 import os
+import random
 import tempfile
 from pathlib import Path
 from typing import Any
 
+import lightning as L
+import numpy as np
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
+from lightning.pytorch.utilities.exceptions import SIGTERMException
+
+log = logging.getLogger("deepcurrents")
+
+PLAIN_SCALARS = (str, int, float, bool, type(None))
+
+
+def plain_data(obj: Any, where: str = "checkpoint") -> Any:
+    """``obj`` with every container made a dict/list/tuple and every leaf a tensor, str, number, bool or None
+    (what ``torch.load(weights_only=True)`` accepts): OmegaConf containers become dicts and lists, numpy
+    arrays tensors, numpy scalars Python numbers, paths strings. Any other object is a programming error
+    (TypeError naming where it sits), caught by the tests that save every model kind."""
+    if isinstance(obj, torch.Tensor) or isinstance(obj, PLAIN_SCALARS):
+        return obj
+    if isinstance(obj, dict):
+        return {k: plain_data(v, f"{where}[{k!r}]") for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        items = [plain_data(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+        return tuple(items) if isinstance(obj, tuple) and not hasattr(obj, "_fields") else items
+    if isinstance(obj, np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(obj))
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    from omegaconf import DictConfig, ListConfig, OmegaConf
+
+    if isinstance(obj, (DictConfig, ListConfig)):
+        return plain_data(OmegaConf.to_container(obj, resolve=True), where)
+    raise TypeError(f"{where} holds a {type(obj).__module__}.{type(obj).__qualname__}; checkpoints hold only "
+                    "tensors and plain data (convert it in on_save_checkpoint or state_dict).")
 
 
 def atomic_torch_save(obj: Any, path: str | Path) -> None:
@@ -29,7 +74,77 @@ def atomic_torch_save(obj: Any, path: str | Path) -> None:
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
-    """Lightning checkpoint IO with atomic writes."""
+    """Lightning checkpoint IO: atomic writes of plain data, reads that never unpickle arbitrary objects."""
 
     def save_checkpoint(self, checkpoint: dict[str, Any], path, storage_options=None) -> None:
-        atomic_torch_save(checkpoint, path)
+        atomic_torch_save(plain_data(checkpoint), path)
+
+    def load_checkpoint(self, path, map_location=None, weights_only: bool | None = None) -> dict[str, Any]:
+        # whatever the caller asks: a checkpoint is data, never code (the runner has already checked the
+        # file with models.loading.read_checkpoint, which explains a refusal in one sentence)
+        return super().load_checkpoint(path, map_location=map_location, weights_only=True)
+
+
+def random_state() -> dict[str, Any]:
+    """The global random generators' states as tensors and plain data."""
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    state = {
+        "torch": torch.get_rng_state(),
+        "numpy": {"kind": kind, "keys": torch.from_numpy(keys.astype(np.int64)), "pos": int(pos),
+                  "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+        "python": random.getstate(),
+    }
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_random_state(state: dict[str, Any]) -> None:
+    """Restores what :func:`random_state` returned."""
+    torch.set_rng_state(state["torch"])
+    npy = state["numpy"]
+    np.random.set_state((npy["kind"], npy["keys"].numpy().astype(np.uint32), npy["pos"], npy["has_gauss"],
+                         npy["cached_gaussian"]))
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+    if "cuda" in state and torch.cuda.is_available():
+        states = state["cuda"]
+        if len(states) == torch.cuda.device_count():
+            torch.cuda.set_rng_state_all(states)
+
+
+class ResumeState(L.Callback):
+    """Saves the global random generators with every checkpoint and puts them back right before the first
+    training step of a resumed run (after the setup that may draw numbers of its own), so that a resumed run
+    draws what the uninterrupted run drew. Batches come from per-step streams (data.ambient.step_generators)."""
+
+    def __init__(self) -> None:
+        self._pending: dict[str, Any] | None = None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"random": random_state()}
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        self._pending = state_dict.get("random")
+
+    def on_train_batch_start(self, trainer: L.Trainer, pl_module: L.LightningModule, batch: Any,
+                             batch_idx: int) -> None:
+        if self._pending is not None:
+            set_random_state(self._pending)
+            self._pending = None
+
+
+class PreemptionCheckpoint(L.Callback):
+    """On SIGTERM (Lightning stops after the running step with SIGTERMException), writes ``path`` (the run's
+    ``checkpoints/last.ckpt``) before the process exits. Other exceptions write nothing: after a NaN loss the
+    last good checkpoint must stay."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.saved_step: int | None = None
+
+    def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
+        if isinstance(exception, SIGTERMException):
+            trainer.save_checkpoint(self.path, weights_only=False)
+            self.saved_step = int(trainer.global_step)
+            log.warning("Stopped by SIGTERM at step %d; checkpoint written to %s.", self.saved_step, self.path)

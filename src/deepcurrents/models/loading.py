@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 import pickle
-import zipfile
+import re
 from pathlib import Path
 from typing import Any
 
@@ -25,16 +25,28 @@ class CheckpointError(UserInputError):
 
 
 def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
-    """The checkpoint's dictionary (on the CPU), or CheckpointError naming the file and what is wrong."""
+    """The checkpoint's dictionary (on the CPU), or CheckpointError naming the file and what is wrong.
+
+    Read with ``weights_only=True``: only tensors and plain data are unpickled, so a crafted file cannot run
+    code (ours hold nothing else, models.checkpointing.plain_data); one that needs more is refused."""
     path = Path(str(ckpt_path)).expanduser()
     if not path.exists():
         raise CheckpointError(f"ckpt_path='{ckpt_path}' does not exist.")
     if not path.is_file():
         raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a file.")
     try:
-        # our checkpoints hold plain data (config dicts, hyperparameters); they are our own files
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except (RuntimeError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError, ValueError, OSError) as err:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        found = re.search(r"GLOBAL ([\w.]+)", str(err))
+        if "Weights only load failed" not in str(err):
+            raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a readable PyTorch checkpoint (truncated or "
+                                  "corrupt: UnpicklingError).") from None
+        what = f" ({found.group(1)})" if found else ""
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}' holds Python objects other than tensors and plain data{what}; it is "
+            "refused, because opening it could run code (DeepCurrents checkpoints hold only data)."
+        ) from None
+    except Exception as err:  # any other failure to parse the file: torn, not a checkpoint, corrupt
         raise CheckpointError(
             f"ckpt_path='{ckpt_path}' is not a readable PyTorch checkpoint (truncated or corrupt: "
             f"{type(err).__name__})."
@@ -111,6 +123,74 @@ def load_module(ckpt_path: str | Path, map_location: str | torch.device | None =
     if map_location is not None:
         module.to(map_location)
     return module
+
+
+# settings of ``data`` that say which problem a run solves (the rest are sizes, workers, augmentation)
+PROBLEM_KEYS = ("_target_", "dim", "curve", "curve_vertices", "curve_scale", "points", "signs", "radius", "mesh",
+                "category", "source", "index", "path", "max_meshes", "held_out")
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Nested plain data (and tensors) equal up to float rounding (a boundary read back from a file)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    try:
+        x, y = torch.as_tensor(a, dtype=torch.float64), torch.as_tensor(b, dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError):
+        if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+            return len(a) == len(b) and all(_same(u, v) for u, v in zip(a, b, strict=True))
+        return a == b
+    return x.shape == y.shape and bool(torch.allclose(x, y, rtol=1e-6, atol=1e-9))
+
+
+def check_resumable(ckpt_path: str | Path, module: DeepCurrentsModule) -> dict[str, Any]:
+    """Checks, before training, that the checkpoint can continue the run ``module`` was built for: a
+    DeepCurrents checkpoint (read safely, :func:`read_checkpoint`) of the same model kind, whose problem
+    (boundary, target, training shapes) and weight shapes are this run's. → the checkpoint; else
+    CheckpointError, one sentence saying what differs."""
+    ckpt = read_checkpoint(ckpt_path)
+    info = ckpt[CHECKPOINT_KEY]
+    cls = module_class(info["module"], ckpt_path)
+    if cls is not type(module):
+        raise CheckpointError(
+            f"ckpt_path='{ckpt_path}' holds a {cls.__name__}, but this run's config builds a "
+            f"{type(module).__name__}; resume with the model it was trained with."
+        )
+    saved_cfg = info.get("config") if isinstance(info.get("config"), dict) else {}
+    own_cfg = module.run_config or {}
+    saved_data, own_data = saved_cfg.get("data") or {}, own_cfg.get("data") or {}
+    for key in PROBLEM_KEYS:
+        if key in saved_data and key in own_data and not _same(saved_data[key], own_data[key]):
+            raise CheckpointError(
+                f"ckpt_path='{ckpt_path}' was trained with data.{key}={saved_data[key]!r}, but this run has "
+                f"data.{key}={own_data[key]!r}; resume with the data it was trained on."
+            )
+    saved_hp, own_hp = ckpt.get("hyper_parameters") or {}, dict(module.hparams)
+    for key, what in (("boundary", "another boundary Γ"), ("shape_names", "other training shapes"),
+                      ("loop_lengths", "other boundary loops")):
+        if key in saved_hp and key in own_hp and not _same(saved_hp[key], own_hp[key]):
+            raise CheckpointError(
+                f"ckpt_path='{ckpt_path}' was trained for {what} than this run's data gives (the same "
+                "settings, but the files differ); resume with the data it was trained on."
+            )
+    saved_sd, own_sd = ckpt["state_dict"], module.state_dict()
+    if not isinstance(saved_sd, dict):
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' has no weights (its state_dict is not a dictionary).")
+    for name, buffer in module.named_buffers():
+        if name.startswith("target_") and name in saved_sd and not _same(saved_sd[name], buffer):
+            raise CheckpointError(
+                f"ckpt_path='{ckpt_path}' was trained on another target surface than this run's data gives "
+                "(the same settings, but the file differs); resume with the data it was trained on."
+            )
+    for name, tensor in own_sd.items():
+        other = saved_sd.get(name)
+        if not isinstance(other, torch.Tensor) or other.shape != tensor.shape:
+            raise CheckpointError(
+                f"ckpt_path='{ckpt_path}': its weights do not fit the {type(module).__name__} this run's config "
+                f"builds ('{name}' differs: model.net / model.rff / model.* sizes are not the ones it was "
+                "trained with)."
+            )
+    return ckpt
 
 
 def current_to_view(module, shape: int | None = None):
