@@ -432,7 +432,7 @@ def dataset_path(root: str | Path, source: str, category: str, index: int) -> Pa
     folder = Path(root) / source / category
     if not folder.is_dir():
         hint = "run `make data`" if source == "anny" else \
-            f"run `python -m deepcurrents.data.human_parts --source {source} ...`"
+            f"run `python -m deepcurrents.cli.make_dataset --source {source} ...`"
         raise DatasetError(f"Dataset directory '{folder}' does not exist; {hint} to build it.")
     files = sorted(folder.glob("*.ply"))
     if not files:
