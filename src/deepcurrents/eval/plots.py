@@ -22,6 +22,28 @@ def normal_colors(normals: np.ndarray) -> np.ndarray:
     return np.clip(0.5 * (n + 1.0), 0.0, 1.0)
 
 
+def figure_pixels(fig, path: str | Path | None = None) -> np.ndarray:
+    """A matplotlib figure as pixels (H, W, 4) uint8 RGBA, written to ``path`` too if given; the figure is
+    closed."""
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba()).copy()
+    if path is not None:
+        fig.savefig(path)
+    plt.close(fig)
+    return image
+
+
+def _finish(fig, ax, title: str | None, path: str | Path | None):
+    """Title, tight layout, and for a ``path`` the file written and the figure closed. → the figure."""
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path)
+        plt.close(fig)
+    return fig
+
+
 @dataclass(frozen=True)
 class MeshView:
     """What a ``plot_mesh`` picture shows: the view direction (matplotlib's elevation and azimuth in degrees,
@@ -86,13 +108,7 @@ def plot_mesh(
     ax.view_init(elev=elev, azim=azim)
     ax.set_box_aspect((1, 1, 1), zoom=1.6)  # the axes cube is hidden: let the shape fill the frame
     ax.set_axis_off()
-    if title:
-        ax.set_title(title)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path)
-        plt.close(fig)
-    return fig
+    return _finish(fig, ax, title, path)
 
 
 def plot_mesh_grid(
@@ -115,9 +131,7 @@ def plot_mesh_grid(
     for i, mesh in enumerate(meshes):
         fig = plot_mesh(mesh, None if loops is None else list(loops[i]), None,
                         title=None if titles is None else titles[i], elev=elev, azim=azim, size=size)
-        fig.canvas.draw()
-        tiles.append(np.asarray(fig.canvas.buffer_rgba()).copy())
-        plt.close(fig)
+        tiles.append(figure_pixels(fig))
     h, w = tiles[0].shape[:2]
     nrows = int(np.ceil(n / ncols))
     image = np.full((nrows * h, ncols * w, 4), 255, dtype=np.uint8)
@@ -161,13 +175,7 @@ def plot_current_2d(
     ax.set_xlim(-1, 1)
     ax.set_ylim(-1, 1)
     ax.set_aspect("equal")
-    if title:
-        ax.set_title(title)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path)
-        plt.close(fig)
-    return fig
+    return _finish(fig, ax, title, path)
 
 
 def _metric_ellipses(ax, metric_grid: np.ndarray, extent: float) -> None:

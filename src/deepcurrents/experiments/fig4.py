@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import trimesh  # noqa: E402
 
-from deepcurrents.eval.plots import mesh_view, plot_mesh  # noqa: E402
+from deepcurrents.eval.plots import figure_pixels, mesh_view, plot_mesh  # noqa: E402
 from deepcurrents.experiments.tables import write_table  # noqa: E402
 from deepcurrents.models.loading import read_checkpoint  # noqa: E402
 
@@ -73,10 +73,7 @@ def load_member(result: dict[str, Any]) -> dict[str, Any]:
 def render_panel(mesh: trimesh.Trimesh, loops: list[np.ndarray], title: str, size: float = 4.0) -> np.ndarray:
     """One mesh by ``plot_mesh``, framed by Γ alone (so both methods share the camera) → RGB image."""
     fig = plot_mesh(mesh, loops, path=None, title=title, size=size, view=mesh_view(loops, margin=1.15))
-    fig.canvas.draw()
-    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
-    plt.close(fig)
-    return image
+    return np.ascontiguousarray(figure_pixels(fig)[..., :3])
 
 
 def write_fig4(out_dir: str | Path, results: list[dict[str, Any]], cfg=None) -> list[dict[str, Any]]:

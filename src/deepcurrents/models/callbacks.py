@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from deepcurrents.errors import positive_int
+from deepcurrents.eval.plots import figure_pixels
 from deepcurrents.eval.render import (
     DensitySettings,
     fit_camera,
@@ -74,16 +75,12 @@ class MediaCallback(L.Callback):
         except ValueError:
             return None
         if current.dim == 2:
-            import matplotlib.pyplot as plt
-
             metric_fn = getattr(pl_module, "metric_fn", None)
             if metric_fn is None and trainer is not None:
                 metric_fn = getattr(trainer.datamodule, "metric_fn", None)
             fig = render_current_2d(current, None, metric_fn=metric_fn if callable(metric_fn) else None,
                                     show_alpha=not callable(metric_fn))
-            fig.canvas.draw()
-            image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
-            plt.close(fig)
+            image = np.ascontiguousarray(figure_pixels(fig)[..., :3])
         else:
             grid = proposal_grid(current, self.grid, self.settings)
             camera = fit_camera(grid.framing_points(), self.azimuth, self.elevation, width=self.size,

@@ -11,7 +11,7 @@ import torch
 
 from deepcurrents.eval.device import device_of
 from deepcurrents.eval.meshing import extract_curve_2d
-from deepcurrents.eval.plots import plot_current_2d, plot_mesh
+from deepcurrents.eval.plots import figure_pixels, plot_current_2d, plot_mesh
 from deepcurrents.eval.render.camera import Camera
 
 
@@ -21,18 +21,11 @@ def render_mesh(mesh, loops: Sequence[np.ndarray] | None = None, camera: Camera 
 
     matplotlib's 3D view is orthographic-ish and fits the data: only the angles and the size are used.
     """
-    import matplotlib.pyplot as plt
-
     camera = camera or Camera()
     size = max(camera.width, camera.height) / 120.0
     fig = plot_mesh(mesh, list(loops or []), None, title=title, elev=camera.elevation, azim=camera.azimuth,
                     size=size)
-    fig.canvas.draw()
-    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
-    if path is not None:
-        fig.savefig(path)
-    plt.close(fig)
-    return image
+    return np.ascontiguousarray(figure_pixels(fig, path)[..., :3])
 
 
 @torch.no_grad()
