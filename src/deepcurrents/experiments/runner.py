@@ -106,7 +106,7 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
     Before training: the inputs are checked (one sentence on a bad one), the run directory must be writable
     with room for the checkpoints and must not be in use by another run (a lock file, experiments.run_dir),
     and a checkpoint to resume from (``ckpt_path=FILE|auto``) must be a DeepCurrents checkpoint of this model
-    kind and problem (models.loading.check_resumable). SIGTERM (preemption) writes ``checkpoints/last.ckpt``
+    kind and problem (models.loading.check_resumable). SIGTERM or SIGUSR1 (preemption) writes ``checkpoints/last.ckpt``
     and ends the process with status 143; ``ckpt_path=auto`` continues from it.
     """
     out_dir = make_run_dir(Path(out_dir) if out_dir is not None else output_dir(cfg))
@@ -137,7 +137,7 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
         trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
     except SIGTERMException:
-        log.warning("Stopped by SIGTERM at step %d; %s holds it. Continue with ckpt_path=auto "
+        log.warning("Stopped by a signal (SIGTERM/SIGUSR1) at step %d; %s holds it. Continue with ckpt_path=auto "
                     "hydra.run.dir=%s.", trainer.global_step, last, out_dir)
         raise SystemExit(143) from None
     # the final state, whatever step it ended on (periodic checkpoints may be older)

@@ -6,8 +6,8 @@ from the file), and carrying what an exact resume needs beyond Lightning's own s
   and safe reads on resuming (``trainer.fit(ckpt_path=…)`` and SLURM's ``hpc_ckpt_*.ckpt`` both read here).
 - :class:`ResumeState`: a callback saving the global random generators (torch, CUDA, numpy, Python) in every
   checkpoint and restoring them before the first step of a resumed run.
-- :class:`PreemptionCheckpoint`: a callback writing ``last.ckpt`` when the run is stopped by SIGTERM (SLURM
-  preemption, ``scancel``) so that a requeued job continues from the step it reached.
+- :class:`PreemptionCheckpoint`: a callback writing ``last.ckpt`` when the run is stopped by SIGTERM or SIGUSR1
+  (SLURM preemption, ``scancel``, a time limit) so that a requeued job continues from the step it reached.
 """
 
 from __future__ import annotations
@@ -15,7 +15,9 @@ from __future__ import annotations
 import logging
 import os
 import random
+import signal
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -135,16 +137,38 @@ class ResumeState(L.Callback):
 
 
 class PreemptionCheckpoint(L.Callback):
-    """On SIGTERM (Lightning stops after the running step with SIGTERMException), writes ``path`` (the run's
-    ``checkpoints/last.ckpt``) before the process exits. Other exceptions write nothing: after a NaN loss the
-    last good checkpoint must stay."""
+    """On SIGTERM (Lightning stops after the running step with SIGTERMException) or SIGUSR1 (the signal SLURM
+    sends ahead of a time limit with ``--signal=USR1@90``; handled here unless Lightning's own SLURM
+    auto-requeue handler has it), writes ``path`` (the run's ``checkpoints/last.ckpt``) after the running step
+    and stops. Other exceptions write nothing: after a NaN loss the last good checkpoint must stay."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.saved_step: int | None = None
+        self._stop = False
+        self._previous: Any = None
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        self._stop = True  # acted on at the end of the running step
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        usr1 = getattr(signal, "SIGUSR1", None)
+        if usr1 is not None and threading.current_thread() is threading.main_thread() \
+                and signal.getsignal(usr1) in (signal.SIG_DFL, None):
+            self._previous = signal.signal(usr1, self._on_signal)
+
+    def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any, batch: Any,
+                           batch_idx: int) -> None:
+        if self._stop:
+            raise SIGTERMException()
+
+    def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGUSR1, self._previous)
+            self._previous = None
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
         if isinstance(exception, SIGTERMException):
             trainer.save_checkpoint(self.path, weights_only=False)
             self.saved_step = int(trainer.global_step)
-            log.warning("Stopped by SIGTERM at step %d; checkpoint written to %s.", self.saved_step, self.path)
+            log.warning("Stopped by a signal at step %d; checkpoint written to %s.", self.saved_step, self.path)

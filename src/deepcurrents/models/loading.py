@@ -37,14 +37,14 @@ def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
-        found = re.search(r"GLOBAL ([\w.]+)", str(err))
-        if "Weights only load failed" not in str(err):
+        found = re.search(r"GLOBAL ([\w.]+)", str(err))  # the object the file asks to import and call
+        if found is None:  # not a pickle we can read at all (text, random bytes)
             raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a readable PyTorch checkpoint (truncated or "
                                   "corrupt: UnpicklingError).") from None
-        what = f" ({found.group(1)})" if found else ""
         raise CheckpointError(
-            f"ckpt_path='{ckpt_path}' holds Python objects other than tensors and plain data{what}; it is "
-            "refused, because opening it could run code (DeepCurrents checkpoints hold only data)."
+            f"ckpt_path='{ckpt_path}' holds Python objects other than tensors and plain data "
+            f"({found.group(1)}); it is refused, because opening it could run code (DeepCurrents checkpoints "
+            "hold only data)."
         ) from None
     except Exception as err:  # any other failure to parse the file: torn, not a checkpoint, corrupt
         raise CheckpointError(

@@ -1,0 +1,286 @@
+"""Crashes, preemption and resuming: a run killed (kill -9) or stopped by SIGTERM/SIGUSR1 and resumed with
+``ckpt_path=auto`` ends with the weights of the uninterrupted run, bit for bit on the CPU; a checkpoint that
+cannot continue this run is refused before training in one sentence; the run directory is checked (writable,
+room for checkpoints) and locked against a second run."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, compose_cfg
+
+from deepcurrents.errors import UserInputError
+from deepcurrents.experiments import run_dir
+from deepcurrents.experiments.runner import train
+
+STEPS = 300  # long enough that a signal sent at the first checkpoint arrives well before the end
+RUN = ["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL, "data.num_samples=512",
+       "callbacks.model_checkpoint.every_n_train_steps=5", f"trainer.max_steps={STEPS}"]
+ENV = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """One thread, as in the subprocesses (ENV): reductions then add in the same order everywhere."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def weights(path: Path) -> dict[str, torch.Tensor]:
+    return torch.load(path, map_location="cpu", weights_only=True)["state_dict"]
+
+
+def assert_same_weights(a: Path, b: Path) -> None:
+    wa, wb = weights(a), weights(b)
+    assert wa.keys() == wb.keys()
+    different = [k for k in wa if not torch.equal(wa[k], wb[k])]
+    assert not different, f"weights differ: {different[:3]}"
+
+
+def start_cli(args: list[str]) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def run_cli(args: list[str], timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT, env=ENV,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 180) -> None:
+    """Short polls until ``path`` exists (the run's first periodic checkpoint)."""
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, f"the run ended before writing {path}: {proc.stderr.read()[-2000:]}"
+        assert time.monotonic() < deadline, f"no {path} after {timeout} s"
+        time.sleep(0.02)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> Path:
+    """The reference: the same run, never stopped. → its last.ckpt."""
+    out = tmp_path_factory.mktemp("uninterrupted")
+    metrics = train(compose_cfg(RUN), out_dir=out)
+    assert metrics["steps"] == STEPS
+    return out / "checkpoints" / "last.ckpt"
+
+
+def test_resumed_in_process_run_equals_the_uninterrupted_one(tmp_path):
+    """k < N steps (checkpoint every 2), then ckpt_path=auto to N: the weights, the optimiser's moments and
+    the step count equal those of N steps in one go."""
+    base = ["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL,
+            "callbacks.model_checkpoint.every_n_train_steps=2"]
+    train(compose_cfg([*base, "trainer.max_steps=7"]), out_dir=tmp_path / "a")
+    train(compose_cfg([*base, "trainer.max_steps=3"]), out_dir=tmp_path / "b")
+    metrics = train(compose_cfg([*base, "trainer.max_steps=7", "ckpt_path=auto"]), out_dir=tmp_path / "b")
+    assert metrics["steps"] == 7
+    a, b = tmp_path / "a/checkpoints/last.ckpt", tmp_path / "b/checkpoints/last.ckpt"
+    assert_same_weights(a, b)
+    ca, cb = (torch.load(p, weights_only=True) for p in (a, b))
+    assert ca["global_step"] == cb["global_step"] == 7
+    sa, sb = ca["optimizer_states"][0]["state"], cb["optimizer_states"][0]["state"]
+    assert all(torch.equal(sa[i]["exp_avg_sq"], sb[i]["exp_avg_sq"]) for i in sa)
+    assert ca["lr_schedulers"][0]["last_epoch"] == cb["lr_schedulers"][0]["last_epoch"] == 7
+
+
+def test_kill_9_then_auto_resume_equals_the_uninterrupted_run(tmp_path, uninterrupted):
+    out = tmp_path / "run"
+    proc = start_cli([*RUN, f"hydra.run.dir={out}"])
+    wait_for(out / "checkpoints" / "last.ckpt", proc)
+    proc.kill()  # SIGKILL: nothing is written on the way out
+    proc.communicate()
+    assert proc.returncode == -signal.SIGKILL
+    killed_at = torch.load(out / "checkpoints/last.ckpt", weights_only=True)["global_step"]
+    assert 0 < killed_at < STEPS and not (out / "metrics.json").exists()
+    assert (out / run_dir.LOCK_NAME).exists()  # left behind by the dead process: taken over below
+    resumed = run_cli([*RUN, f"hydra.run.dir={out}", "ckpt_path=auto"])
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert json.loads((out / "metrics.json").read_text())["steps"] == STEPS
+    assert_same_weights(uninterrupted, out / "checkpoints" / "last.ckpt")
+    assert not (out / run_dir.LOCK_NAME).exists()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGUSR1], ids=["SIGTERM", "SIGUSR1"])
+def test_preemption_signal_writes_a_checkpoint_and_resume_reaches_the_same_weights(tmp_path, uninterrupted,
+                                                                                   signum):
+    out = tmp_path / "run"
+    proc = start_cli([*RUN, f"hydra.run.dir={out}"])
+    wait_for(out / "checkpoints" / "last.ckpt", proc)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err[-2000:]
+    assert "Traceback" not in err
+    stopped_at = torch.load(out / "checkpoints/last.ckpt", weights_only=True)["global_step"]
+    assert 0 < stopped_at < STEPS and not (out / "metrics.json").exists()
+    assert not (out / run_dir.LOCK_NAME).exists()  # released on the way out
+    resumed = run_cli([*RUN, f"hydra.run.dir={out}", "ckpt_path=auto"])
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert_same_weights(uninterrupted, out / "checkpoints" / "last.ckpt")
+
+
+# ------------------------------------------------------------------------------ refused resumes
+TINY = ["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL, "trainer.max_steps=2"]
+
+
+@pytest.fixture(scope="module")
+def trefoil_ckpt(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("trefoil")
+    train(compose_cfg(TINY), out_dir=out)
+    return out / "checkpoints" / "last.ckpt"
+
+
+def refused(tmp_path: Path, overrides: list[str], match: str) -> str:
+    cfg = compose_cfg([*TINY, "trainer.max_steps=4", *overrides])
+    out = tmp_path / "resumed"
+    with pytest.raises(UserInputError, match=match) as info:
+        train(cfg, out_dir=out)
+    message = str(info.value)
+    assert "\n" not in message and message.endswith(".")
+    assert not (out / "checkpoints").exists()  # refused before training
+    return message
+
+
+def test_resume_from_missing_truncated_text_or_foreign_files_is_one_sentence(tmp_path, trefoil_ckpt):
+    refused(tmp_path, [f"ckpt_path={tmp_path / 'missing.ckpt'}"], "does not exist")
+    refused(tmp_path, [f"ckpt_path={tmp_path}"], "is not a file")
+    truncated = tmp_path / "truncated.ckpt"
+    truncated.write_bytes(trefoil_ckpt.read_bytes()[:3000])
+    refused(tmp_path, [f"ckpt_path={truncated}"], "truncated or corrupt")
+    text = tmp_path / "notes.ckpt"
+    text.write_text("these are my notes, not a checkpoint\n")
+    refused(tmp_path, [f"ckpt_path={text}"], "truncated or corrupt")
+    foreign = tmp_path / "foreign.ckpt"
+    torch.save({"state_dict": {"w": torch.zeros(2)}, "epoch": 0}, foreign)
+    refused(tmp_path, [f"ckpt_path={foreign}"], "not written by DeepCurrents")
+    plain = tmp_path / "weights.pt"
+    torch.save({"w": torch.zeros(2)}, plain)
+    refused(tmp_path, [f"ckpt_path={plain}"], "no state_dict")
+
+
+def test_resume_with_another_model_boundary_or_size_is_one_sentence(tmp_path, trefoil_ckpt):
+    ckpt = f"ckpt_path={trefoil_ckpt}"
+    refused(tmp_path, [ckpt, "experiment=minimal_grid", "model.grid.resolution=8"],
+            "holds a CurrentModule, but this run's config builds a GridModule")
+    refused(tmp_path, [ckpt, "data.curve=hopf"], "data.curve='trefoil'.*data.curve='hopf'")
+    refused(tmp_path, [ckpt, "data.curve_vertices=60"], "data.curve_vertices=100")
+    refused(tmp_path, [ckpt, "model.net.width=8"], "weights do not fit")
+    # the same setting, another file content: the boundary itself is compared
+    curve = tmp_path / "rim.txt"
+    t = torch.linspace(0, 2 * torch.pi, 41)[:-1]
+    rim = torch.stack([0.5 * torch.cos(t), 0.5 * torch.sin(t), 0 * t], 1)
+    curve.write_text("\n".join(" ".join(f"{v:.6f}" for v in row) for row in rim.tolist()))
+    first = tmp_path / "first"
+    train(compose_cfg([*TINY, "experiment=minimal_curve", f"data.curve={curve}"]), out_dir=first)
+    curve.write_text("\n".join(" ".join(f"{v:.6f}" for v in row) for row in (rim * 0.9).tolist()))
+    refused(tmp_path, ["experiment=minimal_curve", f"data.curve={curve}",
+                       f"ckpt_path={first / 'checkpoints/last.ckpt'}"], "another boundary")
+
+
+def test_crafted_checkpoint_runs_nothing_on_resume(tmp_path, trefoil_ckpt):
+    marker = tmp_path / "MARKER"
+    evil = tmp_path / "evil.ckpt"
+    ckpt = torch.load(trefoil_ckpt, weights_only=True)
+    ckpt["extra"] = Payload(f"touch {marker}")
+    torch.save(ckpt, evil)
+    message = refused(tmp_path, [f"ckpt_path={evil}"], "could run code")
+    assert "posix.system" in message or "os.system" in message
+    assert not marker.exists()
+    proc = run_cli([*TINY, "trainer.max_steps=4", f"ckpt_path={evil}", f"hydra.run.dir={tmp_path / 'cli'}"])
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert [line for line in proc.stderr.splitlines() if line.startswith("error:")][0].count("could run code")
+    assert not marker.exists()
+
+
+class Payload:
+    """Unpickling this object runs a shell command (what a crafted checkpoint would do)."""
+
+    def __init__(self, command: str):
+        self.command = command
+
+    def __reduce__(self):
+        return (os.system, (self.command,))
+
+
+def test_cli_resume_errors_exit_2_without_traceback(tmp_path):
+    text = tmp_path / "notes.ckpt"
+    text.write_text("not a checkpoint\n")
+    proc = run_cli([*TINY, f"ckpt_path={text}", f"hydra.run.dir={tmp_path / 'run'}"])
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "notes.ckpt" in errors[0] and "truncated or corrupt" in errors[0]
+
+
+# ------------------------------------------------------------------------------ the run directory
+def test_unwritable_or_full_output_directory_stops_before_training(tmp_path, monkeypatch):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("the user's file")
+    with pytest.raises(UserInputError, match="cannot be written") as info:
+        train(compose_cfg(TINY), out_dir=blocker / "run")
+    assert "\n" not in str(info.value) and blocker.read_text() == "the user's file"
+
+    class Usage:
+        total, used, free = 10**9, 10**9 - 1000, 1000  # a full disk: 1000 bytes left
+
+    monkeypatch.setattr(run_dir.shutil, "disk_usage", lambda path: Usage)
+    with pytest.raises(UserInputError, match=r"has 0\.0 MB free, but this run needs about"):
+        train(compose_cfg(TINY), out_dir=tmp_path / "full")
+    assert not (tmp_path / "full" / "checkpoints").exists()
+
+
+def test_a_second_run_into_a_locked_directory_is_refused_and_stale_locks_are_taken_over(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    lock = out / run_dir.LOCK_NAME
+    import socket
+
+    # a live process (this test's parent) holds the directory
+    lock.write_text(json.dumps({"host": socket.gethostname(), "pid": os.getppid(), "slurm_job": None}))
+    with pytest.raises(UserInputError, match=f"in use by process {os.getppid()}"):
+        train(compose_cfg(TINY), out_dir=out)
+    assert lock.exists() and not (out / "checkpoints").exists()
+    # a process that is gone: its lock is taken over, and released at the end
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    lock.write_text(json.dumps({"host": socket.gethostname(), "pid": gone.pid, "slurm_job": None}))
+    assert train(compose_cfg(TINY), out_dir=out)["steps"] == 2
+    assert not lock.exists()
+
+
+def test_lock_is_held_during_training(tmp_path, monkeypatch):
+    """While a run trains, its directory's lock names this process (checked from inside a training step)."""
+    seen = []
+    from deepcurrents.models import current_module
+
+    original = current_module.CurrentModule.training_step
+
+    def spy(self, batch, batch_idx):
+        seen.append(json.loads((tmp_path / run_dir.LOCK_NAME).read_text())["pid"])
+        return original(self, batch, batch_idx)
+
+    monkeypatch.setattr(current_module.CurrentModule, "training_step", spy)
+    train(compose_cfg(TINY), out_dir=tmp_path)
+    assert seen == [os.getpid(), os.getpid()] and not (tmp_path / run_dir.LOCK_NAME).exists()
+
+
+def test_auto_without_a_checkpoint_starts_fresh_and_requeued_slurm_jobs_resume(tmp_path, monkeypatch):
+    assert run_dir.resume_path("auto", tmp_path) is None
+    assert run_dir.resume_path(None, tmp_path) is None
+    (tmp_path / "checkpoints").mkdir()
+    older, newer = tmp_path / "checkpoints/step0000005.ckpt", tmp_path / "hpc_ckpt_1.ckpt"
+    older.write_bytes(b"x")
+    newer.write_bytes(b"x")
+    os.utime(older, ns=(1_000_000_000, 1_000_000_000))
+    assert run_dir.resume_path("auto", tmp_path) == newer
+    assert run_dir.resume_path(None, tmp_path) is None  # a fresh run does not resume by itself
+    monkeypatch.setenv("SLURM_RESTART_COUNT", "1")  # a requeued job does
+    assert run_dir.resume_path(None, tmp_path) == newer
