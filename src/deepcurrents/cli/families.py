@@ -13,7 +13,7 @@ from omegaconf import DictConfig
 
 from deepcurrents.cli.common import output_dir
 from deepcurrents.errors import positive_int
-from deepcurrents.eval.metrics import mesh_summary
+from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary
 from deepcurrents.eval.plots import plot_mesh_grid
 from deepcurrents.geometry.curves import write_curve_file
 from deepcurrents.models.autodecoder import AutodecoderModule
@@ -37,23 +37,39 @@ def load_for_app(cfg: DictConfig) -> AutodecoderModule:
 
 
 def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.ndarray], shapes: list[int],
-                     out_dir: Path, stem: str) -> dict[str, Any]:
-    """Meshes the member (z, Γ), writes ``<stem>.ply`` and ``<stem>_boundary.obj``. → its record."""
-    result = module.mesh_member(module.member(z, loops), module.meshing_bounds(shapes, loops))
+                     out_dir: Path, stem: str, mass_samples: int = 0, seed: int = 0) -> dict[str, Any]:
+    """Meshes the member (z, Γ), writes ``<stem>.ply`` and ``<stem>_boundary.obj``. → its record.
+
+    With ``mass_samples`` > 0 the record also has the member's extraction-free ``mass_area`` (Euclidean
+    mass E|ω| over U, in area units) and ``crispness`` = mass_area / mesh_area: about 1 for a clean sheet,
+    larger for a foggy current whose mass is spread around the mesh."""
+    member = module.member(z, loops)
+    result = module.mesh_member(member, module.meshing_bounds(shapes, loops))
     mesh = result.mesh
     mesh.export(out_dir / f"{stem}.ply")
     write_curve_file(out_dir / f"{stem}_boundary.obj", loops)
     summary = mesh_summary(result, loops)
     summary.pop("mesh_level")
+    if mass_samples > 0:
+        mass, _ = mass_estimate(member, int(mass_samples), seed=seed)
+        summary["mass_area"] = mass_to_area(mass, 3, member.alpha_scale)
+        area = summary.get("mesh_area")
+        summary["crispness"] = summary["mass_area"] / area if area else None
     return {"mesh": f"{stem}.ply", "boundary": f"{stem}_boundary.obj", **summary, "_mesh": mesh, "_loops": loops}
 
 
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     errors = [r["boundary_error"] for r in records if r["boundary_error"] is not None]
+    crisp = [r["crispness"] for r in records if r.get("crispness") is not None]
+    closed = [r.get("boundary_loops_closed") for r in records]
     return {
         "boundary_error_mean": float(np.mean(errors)) if errors else None,
         "boundary_error_max": float(np.max(errors)) if errors else None,
         "empty_meshes": sum(r["boundary_error"] is None for r in records),
+        "crispness_mean": float(np.mean(crisp)) if crisp else None,
+        "crispness_max": float(np.max(crisp)) if crisp else None,
+        "meshes_closed_on_boundary": sum(bool(c) and c == len(r["_loops"]) for c, r in zip(closed, records,
+                                                                                           strict=True)),
     }
 
 
