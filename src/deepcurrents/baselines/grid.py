@@ -113,6 +113,10 @@ class GridModule(DeepCurrentsModule):
             self.setup_seconds = time.perf_counter() - start
         return self._problem
 
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        super().on_load_checkpoint(checkpoint)
+        self.problem()  # α at the corners, which ω needs: a checkpoint opened by an app has not trained
+
     def configure_optimizers(self):
         h = grid_spacing(self.resolution)
         s = self.admm_settings

@@ -4,7 +4,8 @@
 Uses the run's own meshing settings (``evaluation.mesh``: the method, by default the current's phase for
 minimal surfaces and the grid and the paper's level set f = s for reconstructions and families; the |ω|
 cut; the tube closed onto Γ; see ``eval.meshing``); any of them can be overridden here.
-Writes ``mesh_r<resolution>.<format>`` (+ a picture) in a folder named after the checkpoint beside it.
+Writes ``mesh_r<resolution>.<format>`` (+ a picture) in a folder named after the checkpoint beside it; a 2D
+current gives its curve instead, ``curve_r<resolution>.npz`` (one (K, 2) polyline per array).
 """
 
 from __future__ import annotations
@@ -14,12 +15,13 @@ import logging
 from dataclasses import dataclass
 
 import hydra
+import numpy as np
 from omegaconf import MISSING, DictConfig
 
 from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
 from deepcurrents.errors import ConfigError, positive_int
-from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_surface
-from deepcurrents.eval.metrics import mesh_summary
+from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
+from deepcurrents.eval.metrics import curve_length, mesh_summary
 from deepcurrents.eval.render import Camera, render_mesh
 from deepcurrents.models.loading import load_module, resolve_device, viewable_current
 
@@ -66,8 +68,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     device = resolve_device(cfg.device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
-    if current.dim != 3:
-        raise ConfigError(f"ckpt_path='{cfg.ckpt_path}' holds a 2D current: there is no surface to extract.")
+    if current.dim == 2:  # a 2D current's "surface" is a curve: its polylines, like the run's curve.npz
+        return extract_curve(module, current, cfg)
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
                              boundary_tube=cfg.boundary_tube, close_boundary=cfg.close_boundary,
                              newton_steps=cfg.newton_steps, method=cfg.method, min_alignment=cfg.min_alignment,
@@ -85,6 +87,21 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
         render_mesh(mesh, loops, Camera(width=480, height=480), out / f"{stem}.png",
                     title=f"area {mesh.area:.4f}, {len(mesh.faces)} faces")
         summary["picture"] = str(out / f"{stem}.png")
+    return summary
+
+
+def extract_curve(module, current, cfg: DictConfig) -> dict:
+    """A 2D current's curve at ``cfg.resolution`` (the run's ``evaluation.curve`` settings otherwise):
+    ``curve_r<resolution>.npz`` (one (K, 2) polyline per array) and its summary."""
+    evaluation = getattr(module, "evaluation", None) or (module.run_config or {}).get("evaluation") or {}
+    settings = {**dict(evaluation.get("curve") or {}), "resolution": int(cfg.resolution)}
+    curves = extract_curve_2d(current, **settings)
+    out = output_dir(cfg.ckpt_path, cfg.out_dir)
+    path = out / f"curve_r{cfg.resolution}.npz"
+    np.savez(path, *curves)
+    summary = {"curve": str(path), "resolution": int(cfg.resolution), "curve_length": curve_length(curves),
+               "pieces": len(curves)}
+    (out / f"curve_r{cfg.resolution}.json").write_text(json.dumps(summary, indent=2))
     return summary
 
 
