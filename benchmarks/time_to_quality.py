@@ -34,6 +34,7 @@ import json
 import math
 import os
 import platform
+import re
 import tempfile
 import time
 from pathlib import Path
@@ -95,11 +96,13 @@ def curves(tmp: Path) -> dict[str, tuple[str, float]]:
 
 
 class Snapshots(L.Callback):
-    """Copies the current's weights when the training clock passes each of ``times`` (seconds), and at the end.
-    Records steps, training seconds and this process's CPU seconds (robust to other users' load)."""
+    """Copies the current's weights when the training clock passes each of ``times`` (seconds; or steps with
+    ``by_steps``), and at the end. Records steps, training seconds and this process's CPU seconds (less
+    sensitive to other users' load than wall seconds)."""
 
-    def __init__(self, times: list[float], wall0: float, cpu0: float):
+    def __init__(self, times: list[float], wall0: float, cpu0: float, by_steps: bool = False):
         self.times = sorted(times)
+        self.by_steps = by_steps
         self.copies: list[dict] = []
         self.wall0, self.cpu0 = wall0, cpu0  # clocks read before the run was built (setup counts)
 
@@ -109,8 +112,9 @@ class Snapshots(L.Callback):
                             "state": copy.deepcopy(pl_module.current.state_dict())})
 
     def on_train_batch_end(self, trainer, pl_module, *args):
-        if self.times and pl_module.elapsed_train_seconds() >= self.times[0]:
-            self.times = [t for t in self.times if t > pl_module.elapsed_train_seconds()]
+        now = trainer.global_step if self.by_steps else pl_module.elapsed_train_seconds()
+        if self.times and now >= self.times[0]:
+            self.times = [t for t in self.times if t > now]
             self._copy(trainer, pl_module)
 
     def on_train_end(self, trainer, pl_module):
@@ -123,20 +127,82 @@ def compose_cfg(overrides: list[str]):
         return compose(config_name="train", overrides=overrides)
 
 
-def train_recipe(overrides: list[str], seconds: float, num_copies: int):
-    """Trains one recipe for ``seconds`` of wall clock. → (module, snapshot records)."""
-    cfg = compose_cfg([*overrides, "logger=none", "trainer=cpu", "trainer.max_steps=-1",
-                       f"trainer.max_time={seconds}", "trainer.enable_progress_bar=false",
+def train_recipe(overrides: list[str], seconds: float, num_copies: int, steps: int | None = None):
+    """Trains one recipe for ``seconds`` of wall clock (or ``steps`` steps). → (module, cfg, snapshot records)."""
+    budget = [f"trainer.max_steps={steps}"] if steps else ["trainer.max_steps=-1", f"trainer.max_time={seconds}"]
+    cfg = compose_cfg([*overrides, "logger=none", "trainer=cpu", *budget, "trainer.enable_progress_bar=false",
                        "trainer.enable_model_summary=false", "callbacks.model_checkpoint=null", "callbacks.media=null"])
     validate_config(cfg)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     datamodule, module = build(cfg)
-    snaps = Snapshots([seconds * 2.0**-k for k in range(num_copies - 1, 0, -1)], wall0, cpu0)
+    horizon = steps or seconds
+    snaps = Snapshots([horizon * 2.0**-k for k in range(num_copies - 1, 0, -1)], wall0, cpu0, by_steps=bool(steps))
     trainer = instantiate(cfg.trainer, logger=False, callbacks=[snaps], enable_checkpointing=False,
                           **trainer_overrides(cfg))
     trainer.fit(module, datamodule=datamodule)
     return module, cfg, snaps.copies
+
+
+def step_costs(recipes: dict[str, list[str]], curve: str, rounds: int = 8, steps: int = 4) -> dict[str, float]:
+    """Seconds per training step of each recipe, interleaved (A B C A B C …, ``steps`` steps each per round) so
+    that every recipe sees the same load; the median over rounds. The step is the module's own loss on the
+    DataModule's batches (sampling, pool, weights), backward and an Adam step."""
+    from deepcurrents.losses import current_loss
+
+    runs = {}
+    for name, overrides in recipes.items():
+        cfg = compose_cfg(["experiment=minimal_curve", f"data.curve={curve}", *overrides, "logger=none"])
+        datamodule, module = build(cfg)
+        batches = iter(datamodule.train_dataloader())
+        opt = torch.optim.Adam(module.parameters(), lr=1e-4)
+        runs[name] = (module, batches, opt)
+    times: dict[str, list[float]] = {name: [] for name in recipes}
+    for r in range(rounds + 1):
+        for name, (module, batches, opt) in runs.items():
+            t = time.perf_counter()
+            for _ in range(steps):
+                batch = next(batches)
+                _, omega = module.current(batch["x"], create_graph=True, alpha=batch.get("alpha"))
+                loss = current_loss(omega, None, batch.get("weight"))
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+            if r:  # the first round warms up
+                times[name].append((time.perf_counter() - t) / steps)
+    return {name: float(np.median(v)) for name, v in times.items()}
+
+
+def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> dict[str, float]:
+    """The final evaluation's parts against training: trains ``steps`` steps, then times the mass estimate
+    (2^20 samples, and stopped at evaluation.mass_rel_stderr) and the phase mesh at evaluation.mesh; the
+    ratios are to ``reference_steps`` steps at the measured seconds per step (preset=cpu's 3000)."""
+    from deepcurrents.eval.meshing import mesh_method
+    from deepcurrents.eval.metrics import mass_estimate
+
+    module, cfg, copies = train_recipe(overrides, 0.0, 1, steps=steps)
+    per_step = copies[-1]["train_seconds"] / max(copies[-1]["steps"], 1)
+    train = per_step * reference_steps
+    current = module.current.eval()
+    out = {"seconds_per_step": per_step, "reference_train_seconds": train}
+    t = time.perf_counter()
+    full = mass_estimate(current, 1 << 20, seed=12345)
+    out["mass_2^20_seconds"] = time.perf_counter() - t
+    info: dict = {}
+    t = time.perf_counter()
+    early = mass_estimate(current, 1 << 20, seed=12345, rel_stderr=float(cfg.evaluation.mass_rel_stderr), info=info)
+    out["mass_early_seconds"] = time.perf_counter() - t
+    out["mass_early_samples"] = info["samples"]
+    out["mass_2^20"], out["mass_early"], out["mass_early_stderr"] = full[0], early[0], early[1]
+    t = time.perf_counter()
+    opts = mesh_method(dict(cfg.evaluation.mesh), module.mesh_method)
+    with torch.no_grad():
+        result = extract_surface(current, **opts)
+    out["mesh_seconds"] = time.perf_counter() - t
+    out["mesh_area"] = float(result.mesh.area)
+    for key in ("mass_2^20_seconds", "mass_early_seconds", "mesh_seconds"):
+        out[key.replace("seconds", "per_train")] = out[key] / train
+    return out
 
 
 def uniform_mass(current, x: torch.Tensor, alpha: torch.Tensor, chunk: int = 1 << 15) -> tuple[float, float]:
@@ -212,6 +278,8 @@ def plot(rows: list[dict], path: Path, threshold: float) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=180.0, help="training budget per recipe and curve")
+    ap.add_argument("--steps", type=int, default=None,
+                    help="a step budget instead (quality per step does not depend on the machine's load)")
     ap.add_argument("--curves", nargs="+", default=["circle05", "ellipse", "tilted_square"])
     ap.add_argument("--heldout", nargs="*", default=[], help="curves never used for tuning (reported apart)")
     ap.add_argument("--recipes", nargs="+", default=["paper", "cpu", "fast"])
@@ -221,6 +289,10 @@ def main() -> None:
     ap.add_argument("--mass-samples", type=int, default=1 << 16)
     ap.add_argument("--mesh", action="store_true", help="mesh the final copy (phase method)")
     ap.add_argument("--mesh-resolution", type=int, default=96)
+    ap.add_argument("--step-cost", action="store_true",
+                    help="only measure seconds per step of each recipe, interleaved, on the first curve")
+    ap.add_argument("--eval-cost", action="store_true",
+                    help="only time the final evaluation of a 300-vertex trefoil against 3000 preset=cpu steps")
     ap.add_argument("--threshold", type=float, default=1.10, help="mass_area / exact to reach")
     ap.add_argument("--out", default="time_to_quality", help="file stem under benchmarks/results/")
     ap.add_argument("--threads", type=int, default=None,
@@ -232,7 +304,7 @@ def main() -> None:
     recipes = dict(RECIPES)
     for spec in args.recipe:
         name, _, overrides = spec.partition("=")
-        recipes[name] = overrides.split(",")
+        recipes[name] = re.split(r",(?![^\[]*\])", overrides)  # commas inside [a,b] stay
         if name not in args.recipes:
             args.recipes.append(name)
     unknown = [r for r in args.recipes if r not in recipes]
@@ -242,6 +314,20 @@ def main() -> None:
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         known = curves(Path(tmp))
+        if args.eval_cost:
+            out = eval_cost(["experiment=minimal_trefoil", "data.curve_vertices=300", *recipes[args.recipes[0]]],
+                            args.steps or 200)
+            out["load"] = os.getloadavg()[0]
+            print(json.dumps(out, indent=2))
+            (RESULTS / f"{args.out}_eval_cost.json").write_text(json.dumps(out, indent=2))
+            return
+        if args.step_cost:
+            costs = step_costs({r: recipes[r] for r in args.recipes}, known[args.curves[0]][0])
+            base = costs[args.recipes[0]]
+            print(f"seconds per step on {args.curves[0]} (interleaved; load {os.getloadavg()[0]:.1f}):")
+            for name, c in costs.items():
+                print(f"  {name:12s} {c * 1e3:8.1f} ms  ({c / base:.2f}× {args.recipes[0]})")
+            return
         order = list(args.recipes)
         for ci, name in enumerate([*args.curves, *args.heldout]):
             if name not in known:
@@ -251,7 +337,7 @@ def main() -> None:
             for recipe in rotated:
                 load0 = os.getloadavg()[0]
                 module, cfg, copies = train_recipe(["experiment=minimal_curve", f"data.curve={path}",
-                                                    *recipes[recipe]], args.seconds, args.copies)
+                                                    *recipes[recipe]], args.seconds, args.copies, args.steps)
                 load1 = os.getloadavg()[0]
                 scored = score(module, cfg, copies, exact, args.mass_samples, args.mesh, args.mesh_resolution)
                 for r in scored:

@@ -193,3 +193,50 @@ def compose_and_build(extra):
     from deepcurrents.experiments.runner import build
 
     return build(compose_cfg(["logger=none", "model.net.width=8", "model.rff.num_frequencies=8", *extra]))
+
+
+@pytest.mark.parametrize("kind", ["sobol", "importance"])
+def test_sample_pool_carries_alpha_and_gives_the_same_current(kind):
+    """data.sampling.pool: batches come from a pool with α precomputed; ω from the pooled α equals ω computed
+    from x, and the pooled weights are those of the sampler's density."""
+    from deepcurrents.data import MinimalSurfaceDataModule
+    from deepcurrents.geometry import biot_savart
+    from deepcurrents.nn import NeuralCurrent
+
+    dm = MinimalSurfaceDataModule(curve="trefoil", curve_vertices=40, num_samples=128,
+                                  sampling={"kind": kind, "pool": 4096, "resolution": 8})
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["x"].shape == (128, 3) and batch["alpha"].shape == (128, 3)
+    loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in dm.boundary.loops]
+    torch.testing.assert_close(batch["alpha"], biot_savart(batch["x"], loops))
+    current = NeuralCurrent(loops=loops, num_frequencies=8, width=8, depth=1, zero_init_output=False)
+    _, w_pool = current(batch["x"], create_graph=False, alpha=batch["alpha"])
+    _, w_direct = current(batch["x"], create_graph=False)
+    torch.testing.assert_close(w_pool, w_direct)
+    if kind == "importance":
+        sampler = AmbientSampler(3, kind=kind, resolution=8, scores=dm.sampling["scores"])
+        # weights of a pooled batch: 1/(vol·q) at the drawn points (the pool's realised uniform share is 1/2)
+        torch.testing.assert_close(batch["weight"], 1.0 / sampler.density(batch["x"], 0.5))
+    with pytest.raises(ConfigError, match=r"data\.sampling\.pool="):
+        MinimalSurfaceDataModule(curve="trefoil", sampling={"kind": kind, "pool": -1})
+
+
+def test_mass_estimate_stops_at_the_requested_precision():
+    """rel_stderr stops the uniform estimate once stderr/mean is small enough: the early answer is the full
+    run's estimate over the same first samples, and a precision it cannot reach uses every sample."""
+    from deepcurrents.eval.metrics import mass_estimate
+    from deepcurrents.geometry import circle
+    from deepcurrents.nn import NeuralCurrent
+
+    current = NeuralCurrent(loops=[torch.as_tensor(circle(0.5, n=32), dtype=torch.float32)], num_frequencies=8,
+                            width=8, depth=1)
+    info: dict = {}
+    early, early_err = mass_estimate(current, 1 << 14, seed=3, chunk_size=1 << 10, rel_stderr=0.5,
+                                     min_samples=1 << 11, info=info)
+    assert info["samples"] == 1 << 11 and early_err <= 0.5 * early
+    prefix, prefix_err = mass_estimate(current, 1 << 11, seed=3, chunk_size=1 << 10)
+    assert early == pytest.approx(prefix) and early_err == pytest.approx(prefix_err)
+    mass_estimate(current, 1 << 13, seed=3, chunk_size=1 << 10, rel_stderr=1e-9, min_samples=1 << 11, info=info)
+    assert info["samples"] == 1 << 13
+    with pytest.raises(ConfigError, match=r"evaluation\.mass_rel_stderr="):
+        validate_config(compose_cfg(["evaluation.mass_rel_stderr=-1"]))

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
-from deepcurrents.data.sampling import AmbientSampler, cell_scores, sampling_options
+from deepcurrents.data.sampling import AmbientSampler, cell_scores, pool_batch, sample_pool, sampling_options
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import Boundary, PointBoundary, biot_savart, biot_savart_2d, load_boundary, validate_points
 
@@ -43,12 +43,16 @@ class AmbientSamples(IterableDataset):
     """
 
     def __init__(self, dim: int, num_samples: int, seed: int = 0, rank: int = 0, start_step: int = 0,
-                 sampling: dict | None = None):
+                 sampling: dict | None = None, pool: dict[str, torch.Tensor] | None = None):
         self.dim, self.num_samples = dim, num_samples
         self.seed, self.rank, self.start_step = seed, rank, start_step
-        self.sampling = dict(sampling or {})
+        self.sampling = {k: v for k, v in (sampling or {}).items() if k != "pool"}
+        self.pool = pool  # precomputed samples with their α (data.sampling.pool): batches are drawn from it
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
+        if self.pool is not None:
+            for _, gen in step_generators(self.seed, self.rank, self.start_step):
+                yield pool_batch(self.pool, self.num_samples, gen)
         uniform = self.sampling.get("kind", "uniform") == "uniform"
         sampler = None if uniform else AmbientSampler(self.dim, seed=self.seed, **self.sampling)
         for _, gen in step_generators(self.seed, self.rank, self.start_step):
@@ -101,23 +105,34 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
             self.boundary = validate_points(points, signs)
         else:
             raise ConfigError(f"data.dim={dim} must be 2 or 3.")
+        AmbientSampler(dim, **{k: v for k, v in self.sampling.items() if k != "pool"})  # checks the options
         if self.sampling.get("kind") == "importance":
-            AmbientSampler(dim, **self.sampling)  # checks the options before training
-            self.sampling["scores"] = self.alpha_scores(int(self.sampling.get("resolution", 16)))
+            self.sampling["scores"] = cell_scores(self.alpha_field(), dim, int(self.sampling.get("resolution", 16)),
+                                                  seed=self.seed)
+        self._pool: dict[str, torch.Tensor] | None = None
 
-    def alpha_scores(self, resolution: int) -> torch.Tensor:
-        """Mean |α_Γ| per cell of a resolution^dim grid: where the untrained current (ω = α) is large. → (C,)"""
+    def alpha_field(self):
+        """x ↦ α_Γ(x), unscaled (the current multiplies it by alpha_scale). (N, dim) → (N, dim)."""
         if self.dim == 3:
             loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in self.boundary.loops]
-            return cell_scores(lambda x: biot_savart(x, loops), 3, resolution, seed=self.seed)
+            return lambda x: biot_savart(x, loops)
         poles = torch.as_tensor(self.boundary.points, dtype=torch.float32)
         signs = torch.as_tensor(self.boundary.signs, dtype=torch.float32)
-        return cell_scores(lambda x: biot_savart_2d(x, poles, signs), 2, resolution, seed=self.seed)
+        return lambda x: biot_savart_2d(x, poles, signs)
+
+    def sample_pool(self) -> dict[str, torch.Tensor] | None:
+        """The data.sampling.pool samples with α precomputed (built once, on first use), or None."""
+        if self.sampling["pool"] and self._pool is None:
+            options = {k: v for k, v in self.sampling.items() if k != "pool"}
+            sampler = AmbientSampler(self.dim, seed=self.seed, **options)  # one pool for every rank
+            self._pool = sample_pool(sampler, self.sampling["pool"], self.alpha_field())
+        return self._pool
 
     def train_dataloader(self) -> DataLoader:
         trainer = self.trainer
         rank = trainer.global_rank if trainer is not None else 0
         start = trainer.global_step if trainer is not None else 0
-        dataset = AmbientSamples(self.dim, self.num_samples, self.seed, rank, start, self.sampling)
+        dataset = AmbientSamples(self.dim, self.num_samples, self.seed, rank, start, self.sampling,
+                                 pool=self.sample_pool())
         return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
                           persistent_workers=self.num_workers > 0)

@@ -29,10 +29,14 @@ def mass_to_area(mass: float, dim: int, alpha_scale: float) -> float:
 
 @torch.no_grad()
 def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size: int = 1 << 15,
-                  metric_fn=None) -> tuple[float, float]:
+                  metric_fn=None, rel_stderr: float | None = None, min_samples: int = 1 << 16,
+                  info: dict | None = None) -> tuple[float, float]:
     """Monte Carlo E_x |B_x ω(x)| over U = [-1, 1]^d and its standard error, in chunks (bounded memory).
 
     ``metric_fn(x) -> B`` (None for B = I) lets reconstruction evaluate its weighted mass the same way.
+    ``rel_stderr``: stop early, once at least ``min_samples`` are drawn and stderr / mean ≤ rel_stderr
+    (``num_samples`` is then the most it draws); the samples are uniform either way. ``info`` (a dict, if
+    given) receives the number of samples used under "samples".
     """
     dev = device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
@@ -49,6 +53,12 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
         total += float(m.sum())
         total_sq += float((m * m).sum())
         done += n
+        if rel_stderr is not None and done >= min_samples and done < num_samples:
+            mean = total / done
+            if math.sqrt(max(total_sq / done - mean * mean, 0.0) / done) <= rel_stderr * abs(mean):
+                break
+    if info is not None:
+        info["samples"] = done
     mean = total / done
     var = max(total_sq / done - mean * mean, 0.0)
     return mean, math.sqrt(var / done)

@@ -52,7 +52,7 @@ class CurrentModule(DeepCurrentsModule):
         return self.current.dim
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
-        _, omega = self.current(batch["x"], create_graph=True)
+        _, omega = self.current(batch["x"], create_graph=True, alpha=batch.get("alpha"))
         loss = current_loss(omega, batch.get("metric"), batch.get("weight"))
         self.check_finite(loss)
         self.log("train/loss", loss, prog_bar=True)
@@ -69,9 +69,12 @@ class CurrentModule(DeepCurrentsModule):
         out_dir.mkdir(parents=True, exist_ok=True)
         self.current.eval()
         samples = int(self.evaluation.get("mass_samples", 1 << 20))
-        mass, stderr = mass_estimate(self.current, samples, seed=int(self.evaluation.get("seed", 12345)))
+        rel = self.evaluation.get("mass_rel_stderr")  # stop early once the estimate is this precise
+        used: dict[str, int] = {}
+        mass, stderr = mass_estimate(self.current, samples, seed=int(self.evaluation.get("seed", 12345)),
+                                     rel_stderr=float(rel) if rel else None, info=used)
         scale = mass_to_area(1.0, self.dim, self.current.alpha_scale)
-        metrics: dict[str, Any] = {"loss": mass, **self.run_metrics()}
+        metrics: dict[str, Any] = {"loss": mass, **self.run_metrics(), "mass_samples": used["samples"]}
         name = "area" if self.dim == 3 else "length"
         metrics[f"mass_{name}"] = mass * scale
         metrics[f"mass_{name}_stderr"] = stderr * scale
