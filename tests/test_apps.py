@@ -12,9 +12,7 @@ import pytest
 import torch
 import trimesh
 import yaml
-from conftest import CONF_DIR, ROOT
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
+from conftest import ROOT, compose_cfg
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
@@ -36,12 +34,6 @@ DISK = [  # about the smallest setting whose extracted mesh is the disk (area wi
     "callbacks.model_checkpoint.every_n_train_steps=100", "callbacks.media.every_n_steps=100",
     "callbacks.media.size=16", "callbacks.media.samples=6", "callbacks.media.grid=8",
 ]
-
-
-def compose_cfg(overrides, hydra_config=False):
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="train", overrides=overrides, return_hydra_config=hydra_config)
 
 
 @pytest.fixture(scope="module")

@@ -9,9 +9,7 @@ import numpy as np
 import pytest
 import scipy.fft
 import torch
-from conftest import CONF_DIR
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
+from conftest import QUIET_CPU, TINY_NET, compose_cfg, hydra_context
 
 from deepcurrents.baselines.grid_solver import (
     GridProblem,
@@ -36,12 +34,6 @@ from deepcurrents.experiments.runner import train
 from deepcurrents.geometry import biot_savart, circle
 
 F64 = torch.float64
-
-
-def compose_cfg(overrides):
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="train", overrides=overrides)
 
 
 # ------------------------------------------------------------------------------------------ transforms
@@ -162,11 +154,7 @@ def test_discrete_mass_of_a_circle_approaches_the_disk_area_as_the_grid_is_refin
 
 # ------------------------------------------------------------------------------------ Lightning runs
 
-TINY = [
-    "logger=none", "trainer=cpu", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
-    "callbacks.media=null", "evaluation.mass_samples=4096", "evaluation.mesh.resolution=24",
-]
-TINY_NET = ["data.num_samples=64", "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=2"]
+TINY = [*QUIET_CPU, "evaluation.mass_samples=4096", "evaluation.mesh.resolution=24"]
 
 
 def test_minimal_grid_run_writes_its_files_and_resumes(tmp_path):
@@ -210,9 +198,8 @@ def test_fig4_suite_writes_its_figure_and_table(tmp_path):
                                                 for m in ("grid", "network")]
     cfg.suite.runs = [r for r in cfg.suite.runs if r.name.endswith("_hopf")]  # one curve keeps it short
     for run in cfg.suite.runs:  # what `python train.py experiment=fig4 <overrides>` passes to each member
-        run.overrides.extend([*TINY, *TINY_NET, "trainer.max_steps=3", "preset=cpu"])
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+        run.overrides.extend([*TINY, *TINY_NET, "trainer.max_steps=3"])
+    with hydra_context():
         train(cfg, out_dir=tmp_path)
     for name in ("fig4.png", "fig4.csv", "fig4.md", "suite.json"):
         assert (tmp_path / name).is_file(), name

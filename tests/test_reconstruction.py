@@ -12,56 +12,15 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import CONF_DIR
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
+from conftest import QUIET_CPU, compose_cfg, hydra_context, spherical_cap
 
-from deepcurrents.data.human_parts import write_parts
 from deepcurrents.data.recon import ReconstructionDataModule, curve_metric_2d, semicircle
 from deepcurrents.errors import UserInputError
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface
 from deepcurrents.experiments.runner import run_suite, train
 
-TINY = [
-    "logger=none", "preset=cpu", "trainer=cpu", "trainer.enable_progress_bar=false",
-    "trainer.enable_model_summary=false", "callbacks.model_checkpoint.every_n_train_steps=1000",
-    "data.num_workers=0", "evaluation.mass_samples=2048", "evaluation.ucd_samples=4000",
-    "callbacks.media=null",
-]
-
-
-def compose_cfg(overrides):
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
-        return compose(config_name="train", overrides=overrides)
-
-
-def spherical_cap(radius: float = 0.5, height: float = 0.25, subdivisions: int = 3) -> trimesh.Trimesh:
-    """The part of a sphere (centre at the origin) above z = radius − height, outward normals: an open
-    surface whose rim is a circle, with 0.5 radius; its Euclidean minimal surface is the flat disk."""
-    sphere = trimesh.creation.icosphere(subdivisions, radius=radius)
-    keep = sphere.triangles_center[:, 2] > radius - height
-    cap = trimesh.Trimesh(sphere.vertices, sphere.faces[keep])
-    cap.remove_unreferenced_vertices()
-    return cap
-
-
-@pytest.fixture(scope="module")
-def cap_file(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("cap") / "cap.ply"
-    spherical_cap().export(path)
-    return path
-
-
-@pytest.fixture(scope="module")
-def parts_root(tmp_path_factory) -> Path:
-    """A tiny human-part-like dataset (caps of different heights) in the generator's layout."""
-    root = tmp_path_factory.mktemp("parts")
-    caps = [spherical_cap(height=0.2, subdivisions=2)]
-    faces = caps[0].faces
-    parts = {c: ([caps[0].vertices], faces, 1.0) for c in ("heads", "hands", "torsos", "feet")}
-    write_parts(parts, root, "anny")
-    return root
+TINY = [*QUIET_CPU, "callbacks.model_checkpoint.every_n_train_steps=1000", "data.num_workers=0",
+        "evaluation.mass_samples=2048", "evaluation.ucd_samples=4000"]
 
 
 def test_spherical_cap_is_reconstructed(tmp_path, cap_file):
@@ -113,12 +72,19 @@ def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):
     np.testing.assert_allclose(v * dm.scale + dm.offset, big.vertices[np.unique(big.faces)], atol=1e-9)
     cfg = compose_cfg(["experiment=recon_mesh", f"data.mesh={path}", *TINY, "trainer.max_steps=2",
                        "data.num_samples=64", "data.num_surface_samples=64", "model.rff.num_frequencies=16",
-                       "model.net.width=16", "model.net.depth=1", "evaluation.mesh.resolution=24"])
+                       "model.net.width=16", "model.net.depth=1", "evaluation.mesh.resolution=24",
+                       "model.net.zero_init_output=false"])  # a random f: its level set is not empty after 2 steps
     metrics = train(cfg, out_dir=tmp_path / "run")
-    if metrics["mesh_faces"]:
-        mesh = trimesh.load(tmp_path / "run" / "mesh.ply", process=False)
-        lo, hi = big.bounds
-        assert np.all(mesh.vertices > lo - 0.3 * 40) and np.all(mesh.vertices < hi + 0.3 * 40)
+    assert metrics["mesh_faces"] > 0
+    # meshed in the target's box grown by evaluation.mesh.padding = 0.15 of its longest side (+ one cell of the
+    # 24-cell grid over the 1.3× box), written back in the input's coordinates (×40, shifted)
+    mesh = trimesh.load(tmp_path / "run" / "mesh.ply", process=False)
+    assert len(mesh.faces) == metrics["mesh_faces"]
+    lo, hi = big.bounds
+    margin = (0.15 + 1e-3 + 1.3 / 24) * extent.max()
+    assert np.all(mesh.vertices > lo - margin) and np.all(mesh.vertices < hi + margin)
+    assert mesh.area == pytest.approx(metrics["mesh_area_input_units"], rel=1e-6)
+    assert metrics["mesh_area_input_units"] == pytest.approx(metrics["mesh_area"] * dm.scale**2, rel=1e-9)
     # the apps rebuild the module from the checkpoint alone: the target comes back with it
     from deepcurrents.models.loading import load_module
     from deepcurrents.models.reconstruction import TargetGeometry
@@ -141,11 +107,14 @@ def test_oriented_point_cloud_run(tmp_path):
     cfg = compose_cfg(["experiment=recon_points", f"data.points={tmp_path / 'cloud.xyz'}",
                        f"data.curve={tmp_path / 'rim.txt'}", *TINY, "trainer.max_steps=2", "data.num_samples=64",
                        "data.num_surface_samples=64", "model.rff.num_frequencies=16", "model.net.width=16",
-                       "model.net.depth=1", "evaluation.mesh.resolution=24"])
+                       "model.net.depth=1", "evaluation.mesh.resolution=24", "model.net.zero_init_output=false"])
     metrics = train(cfg, out_dir=tmp_path / "run")
     assert metrics["steps"] == 2 and (tmp_path / "run" / "metrics.json").is_file()
-    if metrics["mesh_faces"]:
-        assert metrics["ucd"] > 0 and metrics["ucd_reverse"] > 0
+    # a cloud's UCD is the mean distance of all its points to the mesh: recomputed from the written files
+    mesh = trimesh.load(tmp_path / "run" / "mesh.ply", process=False)
+    assert metrics["mesh_faces"] == len(mesh.faces) > 0
+    assert metrics["ucd"] == pytest.approx(float(point_mesh_distance(pts, mesh).mean()), rel=1e-5)
+    assert metrics["ucd_reverse"] > 0
 
 
 def test_closest_point_baseline_stops_at_its_wall_time(tmp_path, parts_root):
@@ -195,8 +164,7 @@ def test_suites_write_their_tables(tmp_path, parts_root, experiment, table):
         cfg.suite.runs[0].overrides.append("trainer.max_steps=3")
     else:
         overrides.append("trainer.max_steps=2")
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
+    with hydra_context():
         results = run_suite(cfg, tmp_path, extra_overrides=overrides)
     assert len(results) == (5 if experiment == "hand_ablation" else 2)
     for ext in ("md", "csv", "png"):
