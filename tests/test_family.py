@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from hydra import compose, initialize_config_dir
+from conftest import ROOT, compose_cfg
 from scipy.spatial.transform import Rotation
 
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh, euler_rotation, principal_directions
@@ -25,9 +25,6 @@ from deepcurrents.geometry import biot_savart, hopf_link
 from deepcurrents.geometry.correspondence import interpolate_loops, resample_loop
 from deepcurrents.geometry.curves import BoundaryError, read_curve_file, write_curve_file
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent, pad_loops
-
-ROOT = Path(__file__).resolve().parents[1]
-CONF = str(ROOT / "conf")
 
 
 # ------------------------------------------------------------------------------------------ fixtures
@@ -101,15 +98,10 @@ def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
         f"trainer.max_steps={steps}", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
         "data.meshes_per_batch=3", "data.num_samples=256", "data.num_surface_samples=192", "data.num_workers=0",
         "data.augment=false", "model.latent_dim=16", "model.boundary_dim=16", "model.surface_weight=5",
-        "model.optim.lr=2e-3", f"model.optim.step_size={steps}", "model.evaluation.ucd_samples=4000",
+        "model.optim.lr=2e-3", f"model.optim.step_size={steps}", "evaluation.ucd_samples=4000",
         "evaluation.mesh.resolution=40", f"callbacks.model_checkpoint.every_n_train_steps={steps}",
         "callbacks.media=null",
     ]
-
-
-def compose_cfg(overrides: list[str]):
-    with initialize_config_dir(config_dir=CONF, version_base="1.3"):
-        return compose(config_name="train", overrides=overrides)
 
 
 @pytest.fixture(scope="module")
@@ -439,7 +431,7 @@ def test_ddp_on_two_cpu_processes_end_to_end(family_dir, tmp_path):
     overrides = [o for o in tiny_overrides(family_dir, out, 4) if not o.startswith("paths.")]
     proc = subprocess.run(
         [sys.executable, "train.py", *overrides, "trainer=ddp_cpu", f"hydra.run.dir={out}",
-         "model.evaluation.max_shapes=1"],
+         "evaluation.max_shapes=1"],
         capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONWARNINGS": "ignore"}, timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]

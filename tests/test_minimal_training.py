@@ -29,7 +29,7 @@ def test_planar_circle_gives_the_disk(tmp_path):
     radius = 0.5
     exact = math.pi * radius**2
     overrides = ["experiment=minimal_trefoil", "data.curve=circle", f"data.curve_scale={radius / 0.6}",
-                 "preset_cpu.max_steps=700", "preset_cpu.step_size=350", "data.num_samples=1024",
+                 "trainer.max_steps=700", "model.optim.step_size=350", "data.num_samples=1024",
                  "model.rff.num_frequencies=128", "model.net.width=64", "model.net.depth=3", "model.optim.lr=2e-3",
                  "evaluation.mesh.resolution=64"]
     metrics = train(compose_cfg(overrides + SMALL), out_dir=tmp_path)

@@ -98,6 +98,9 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
         self.dim, self.num_samples, self.num_workers, self.seed = dim, num_samples, num_workers, seed
         self.boundary: Boundary | PointBoundary
         if dim == 3:
+            if curve is None:  # experiment=minimal_curve without its file
+                raise ConfigError("data.curve must be given: a named curve (trefoil, hopf, borromean, circle, "
+                                  "enneper) or a curve file, e.g. data.curve=path/to/rim.obj.")
             self.boundary = load_boundary(curve, n=curve_vertices, scale=curve_scale)
         elif dim == 2:
             if points is None or signs is None:

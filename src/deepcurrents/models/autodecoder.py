@@ -50,7 +50,8 @@ class AutodecoderModule(DeepCurrentsModule):
         optim: {"lr", "step_size", "gamma"}.
         latent_dim, boundary_dim, latent_std: sizes of z and z_Γ (paper 256, 256) and the codes' initial std.
         surface_weight, surface_margin: weight and δ of the surface hinge loss (paper: 1, 0.01).
-        evaluation: {"mesh": extract_surface kwargs, "ucd_samples", "seed", "padding", "max_shapes"}.
+        evaluation: the run's `evaluation` node: {"mesh": extract_surface kwargs (its "padding" sizes the meshed
+            cube), "ucd_samples", "seed", "max_shapes"}.
         loop_lengths: (S, B) vertex counts of the training loops (stored; sizes the buffers on reload).
         train_loops: S lists of B arrays (M, 3), the unaugmented training boundaries (not a hyperparameter;
             saved in checkpoints).
@@ -138,7 +139,7 @@ class AutodecoderModule(DeepCurrentsModule):
 
     def meshing_bounds(self, shapes: Sequence[int], loops: Sequence[np.ndarray] = ()) -> np.ndarray:
         """The region to mesh: the cube around the union of the given training shapes' boxes and the loops'
-        box, of side (1 + 2·``evaluation.padding``) × its largest extent, clipped to the domain. → (2, 3).
+        box, of side (1 + 2·``evaluation.mesh.padding``) × its largest extent, clipped to the domain. → (2, 3).
 
         A cube rather than the tight box: a learned (or interpolated) surface may leave the target's box,
         and a thin box would hide spurious sheets from the UCD."""
@@ -146,7 +147,9 @@ class AutodecoderModule(DeepCurrentsModule):
         boxes += [np.stack([lp.min(0), lp.max(0)]) for lp in loops]
         lo = np.min([b[0] for b in boxes], 0)
         hi = np.max([b[1] for b in boxes], 0)
-        half = 0.5 * (1.0 + 2.0 * float(self.evaluation.get("padding", 0.1))) * float((hi - lo).max()) + 1e-3
+        # checkpoints written before the one `evaluation` node kept the family's padding at evaluation.padding
+        padding = self.evaluation.get("padding", dict(self.evaluation.get("mesh", {})).get("padding", 0.1))
+        half = 0.5 * (1.0 + 2.0 * float(padding)) * float((hi - lo).max()) + 1e-3
         centre = 0.5 * (lo + hi)
         return np.stack([np.maximum(centre - half, -1.0), np.minimum(centre + half, 1.0)])
 

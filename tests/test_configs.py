@@ -1,0 +1,230 @@
+"""The configs: every option of every group composes, resolves and names importable classes; every experiment
+builds its DataModule and LightningModule (on small synthetic inputs); the lengths and sizes of every experiment
+under preset=paper and preset=cpu are pinned; one `evaluation` node; recon_part and its per-part aliases."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import CONF_DIR, QUIET_CPU, TINY_NET, compose_cfg, spherical_cap
+from hydra.utils import get_object
+from omegaconf import OmegaConf, open_dict
+
+from deepcurrents.errors import UserInputError
+from deepcurrents.experiments.runner import build, train
+
+CONF = Path(CONF_DIR)
+EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
+SUITES = ("fig4", "hand_ablation", "table1")  # several runs and a report: their members are experiments
+PARTS = {"recon_head": "heads", "recon_hand": "hands", "recon_forearm": "forearms", "recon_arm": "arms",
+         "recon_torso": "torsos", "recon_foot": "feet"}
+# chosen by the defaults list (preset × data, preset × model), never on the command line
+CHOSEN_BY_DEFAULTS = ("hydra", "preset_sizes")
+
+
+def group_options() -> list[list[str]]:
+    """One override per option of every config group but experiments (they are built below)."""
+    cases = []
+    for group_dir in sorted(p for p in CONF.iterdir() if p.is_dir()):
+        group = group_dir.name
+        if group in CHOSEN_BY_DEFAULTS or group == "experiment":
+            continue
+        cases += [[f"{group}={p.stem}"] for p in sorted(group_dir.glob("*.yaml"))]
+    return cases
+
+
+def targets(node, path: str = "") -> list[tuple[str, str]]:
+    """Every (key, _target_) in a plain container."""
+    found = []
+    if isinstance(node, dict):
+        if "_target_" in node:
+            found.append((path or "<root>", node["_target_"]))
+        for key, value in node.items():
+            found += targets(value, f"{path}.{key}" if path else str(key))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            found += targets(value, f"{path}[{i}]")
+    return found
+
+
+def assert_resolves(cfg) -> dict:
+    """Every interpolation outside `hydra` resolves and every `_target_` imports. → the resolved container."""
+    plain = OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+    found = targets(plain)
+    assert found, "no _target_ found: the walk is broken"
+    for key, target in found:
+        assert get_object(target) is not None, f"{key}._target_={target}"
+    return plain
+
+
+@pytest.mark.parametrize("overrides", group_options(), ids=lambda o: " ".join(o))
+def test_every_group_option_composes_resolves_and_imports(overrides):
+    cfg = compose_cfg([*overrides, *([] if overrides[0].startswith("preset=") else ["preset=cpu"])],
+                      hydra_config=True)
+    hydra_node = OmegaConf.to_container(cfg.hydra, resolve=False)
+    for key, target in targets(hydra_node):  # sweepers and launchers (resolving `hydra` needs a running Hydra)
+        assert get_object(target) is not None, f"hydra.{key}._target_={target}"
+    with open_dict(cfg):
+        del cfg["hydra"]
+    assert_resolves(cfg)
+
+
+# ------------------------------------------------------------------------------ experiments, built for real
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory, parts_root, cap_file) -> dict[str, list[str]]:
+    """What each experiment needs from the user, made small: a cap mesh, an oriented cloud with its rim,
+    a family of four caps, a human-part dataset."""
+    from deepcurrents.data.targets import mesh_boundary_loops, sample_mesh_surface
+
+    root = tmp_path_factory.mktemp("inputs")
+    cap = spherical_cap(subdivisions=2)
+    pts, nrm = sample_mesh_surface(np.asarray(cap.vertices), np.asarray(cap.faces), 3000,
+                                   torch.Generator().manual_seed(0))
+    np.savetxt(root / "cloud.xyz", np.hstack([pts, nrm]))
+    np.savetxt(root / "rim.txt", mesh_boundary_loops(cap.vertices, cap.faces)[0])
+    family = root / "family"
+    family.mkdir()
+    for i, height in enumerate((0.15, 0.2, 0.25, 0.3)):
+        spherical_cap(height=height, subdivisions=2).export(family / f"{i:03d}.ply")
+    parts = [f"data.root={parts_root}"]
+    return {
+        "minimal_curve": ["data.curve=circle"],
+        "recon_mesh": [f"data.mesh={cap_file}"],
+        "recon_points": [f"data.points={root / 'cloud.xyz'}", f"data.curve={root / 'rim.txt'}"],
+        "latent_hands": [f"data.path={family}", "data.num_workers=0"],
+        "latent_heads": [f"data.path={family}", "data.num_workers=0"],
+        "recon_part": [*parts, "data.category=hands"],
+        "recon_baseline": parts,
+        **{name: parts for name in PARTS},
+    }
+
+
+def build_experiment(overrides: list[str]):
+    cfg = compose_cfg([*overrides, *QUIET_CPU, *TINY_NET])
+    assert_resolves(cfg)
+    return build(cfg)
+
+
+@pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e not in SUITES])
+def test_every_experiment_builds_its_datamodule_and_module(experiment, inputs):
+    datamodule, module = build_experiment([f"experiment={experiment}", *inputs.get(experiment, [])])
+    cfg = compose_cfg([f"experiment={experiment}"])
+    assert type(module).__name__ == cfg.model._target_.rsplit(".", 1)[-1]
+    assert type(datamodule).__name__ == cfg.data._target_.rsplit(".", 1)[-1]
+    assert sum(p.numel() for p in module.parameters()) > 0
+
+
+@pytest.mark.parametrize("suite", SUITES)
+def test_every_suite_member_builds_and_the_report_imports(suite, inputs):
+    cfg = compose_cfg([f"experiment={suite}"])
+    assert callable(get_object(cfg.suite.report))
+    for run in cfg.suite.runs:
+        experiment = next(o.split("=", 1)[1] for o in run.overrides if o.startswith("experiment="))
+        # a member's own overrides come last, as run_suite applies them (they name e.g. data.category)
+        fills = [o for o in inputs.get(experiment, []) if not o.startswith("data.category=")]
+        member = [o for o in run.overrides if "wall_time_from" not in o]  # that file exists only in a suite
+        build_experiment([*fills, *member])
+
+
+# -------------------------------------------------------------------------------- lengths and sizes, pinned
+
+COLUMNS = ("trainer.max_steps", "model.optim.step_size", "model.optim.lr", "model.optim.gamma", "data.num_samples",
+           "data.num_surface_samples", "model.rff.num_frequencies", "model.net.width", "model.net.depth",
+           "callbacks.model_checkpoint.every_n_train_steps", "evaluation.mass_samples", "evaluation.ucd_samples",
+           "evaluation.mesh.resolution")
+# Composed before configs had one place for lengths (commit 238db52), unchanged since but for one fix:
+# recon_baseline under preset=cpu ran 1000 steps (preset_sizes overrode the experiment) where its wall-time
+# budget is meant to stop it (1,000,000).
+LENGTHS = {
+    ("latent_hands", "paper"): (300000, 60000, 0.0004, 0.5, 4000, 4000, 1024, 256, 4, 10000, 1048576, 100000, 128),
+    ("latent_hands", "cpu"): (1500, 600, 0.001, 0.5, 512, 512, 256, 128, 3, 500, 1048576, 20000, 64),
+    ("latent_heads", "paper"): (300000, 60000, 0.0004, 0.5, 4000, 4000, 1024, 256, 4, 10000, 1048576, 100000, 128),
+    ("latent_heads", "cpu"): (1500, 600, 0.001, 0.5, 512, 512, 256, 128, 3, 500, 1048576, 20000, 64),
+    ("minimal_2d", "paper"): (20000, 2000, 0.0005, 0.6, 4096, None, 1024, 256, 4, 1000, 1048576, 100000, 128),
+    ("minimal_2d", "cpu"): (3000, 1000, 0.001, 0.6, 2048, None, 256, 128, 3, 500, 1048576, 100000, 128),
+    ("minimal_borromean", "paper"): (100000, 10000, 0.0005, 0.6, 4096, None, 1024, 256, 4, 1000, 1048576, 100000,
+                                     128),
+    ("minimal_borromean", "cpu"): (3000, 1000, 0.001, 0.6, 2048, None, 256, 128, 3, 500, 1048576, 100000, 128),
+    ("minimal_curve", "paper"): (100000, 10000, 0.0005, 0.6, 4096, None, 1024, 256, 4, 1000, 1048576, 100000, 128),
+    ("minimal_curve", "cpu"): (3000, 1000, 0.001, 0.6, 2048, None, 256, 128, 3, 500, 1048576, 100000, 128),
+    ("minimal_grid", "paper"): (5000, 10000, 0.0005, 0.6, 1, None, 1024, 256, 4, 500, 1048576, 100000, 128),
+    ("minimal_grid", "cpu"): (2000, 1000, 0.001, 0.6, 2048, None, 256, 128, 3, 500, 1048576, 100000, 128),
+    ("minimal_hopf", "paper"): (100000, 10000, 0.0005, 0.6, 4096, None, 1024, 256, 4, 1000, 1048576, 100000, 128),
+    ("minimal_hopf", "cpu"): (3000, 1000, 0.001, 0.6, 2048, None, 256, 128, 3, 500, 1048576, 100000, 128),
+    ("minimal_trefoil", "paper"): (100000, 10000, 0.0005, 0.6, 4096, None, 1024, 256, 4, 1000, 1048576, 100000,
+                                   128),
+    ("minimal_trefoil", "cpu"): (3000, 1000, 0.001, 0.6, 2048, None, 256, 128, 3, 500, 1048576, 100000, 128),
+    ("recon_2d_semicircle", "paper"): (20000, 2000, 0.0005, 0.6, 4096, None, 1024, 256, 4, 1000, 1048576, 100000,
+                                       128),
+    ("recon_2d_semicircle", "cpu"): (400, 150, 0.001, 0.6, 1024, None, 256, 128, 3, 500, 65536, 100000, 128),
+    ("recon_baseline", "paper"): (1000000, 2000, 0.001, 0.6, 4000, 4000, 1024, 256, 4, 1000, 1048576, 100000, 128),
+    ("recon_baseline", "cpu"): (1000000, 400, 0.001, 0.6, 1024, 1024, 256, 128, 3, 500, 65536, 100000, 96),
+    ("recon_mesh", "paper"): (10000, 2000, 0.001, 0.6, 4000, 4000, 1024, 256, 4, 1000, 1048576, 100000, 128),
+    ("recon_mesh", "cpu"): (1000, 400, 0.001, 0.6, 1024, 1024, 256, 128, 3, 500, 65536, 100000, 96),
+    ("recon_points", "paper"): (10000, 2000, 0.001, 0.6, 4000, 4000, 1024, 256, 4, 1000, 1048576, 100000, 128),
+    ("recon_points", "cpu"): (1000, 400, 0.001, 0.6, 1024, 1024, 256, 128, 3, 500, 65536, 100000, 96),
+    # every recon_<part> alias and recon_part itself (see test_recon_part_aliases_are_recon_part_with_a_category)
+    ("recon_part", "paper"): (10000, 2000, 0.001, 0.6, 4000, 4000, 1024, 256, 4, 1000, 1048576, 100000, 128),
+    ("recon_part", "cpu"): (1000, 400, 0.001, 0.6, 1024, 1024, 256, 128, 3, 500, 65536, 100000, 96),
+}
+
+
+@pytest.mark.parametrize("experiment, preset", sorted(LENGTHS), ids=lambda v: str(v))
+def test_lengths_and_sizes_of_every_experiment_are_pinned(experiment, preset):
+    cfg = compose_cfg([f"experiment={experiment}", f"preset={preset}"])
+    got = tuple(OmegaConf.select(cfg, key) for key in COLUMNS)
+    assert dict(zip(COLUMNS, got, strict=True)) == dict(zip(COLUMNS, LENGTHS[experiment, preset], strict=True))
+
+
+def test_the_table_covers_every_experiment():
+    runs = {e for e in EXPERIMENTS if e not in SUITES and e not in PARTS}
+    assert {e for e, _ in LENGTHS} == runs
+
+
+@pytest.mark.parametrize("preset", ["paper", "cpu"])
+def test_the_command_line_has_the_last_word_over_preset_sizes(preset):
+    cfg = compose_cfg(["experiment=recon_hand", f"preset={preset}", "trainer.max_steps=7",
+                       "model.optim.step_size=3", "evaluation.mesh.resolution=40", "ablation=no_rff"])
+    assert (cfg.trainer.max_steps, cfg.model.optim.step_size, cfg.evaluation.mesh.resolution) == (7, 3, 40)
+    assert cfg.model.rff.enabled is False
+
+
+# ---------------------------------------------------------------------------- one evaluation node, recon_part
+
+@pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e not in SUITES])
+@pytest.mark.parametrize("preset", ["paper", "cpu"])
+def test_models_read_the_one_evaluation_node(experiment, preset):
+    cfg = compose_cfg([f"experiment={experiment}", f"preset={preset}"])
+    assert OmegaConf.to_container(cfg.model.evaluation, resolve=True) == OmegaConf.to_container(
+        cfg.evaluation, resolve=True)
+    # an override of the root node reaches the module
+    cfg2 = compose_cfg([f"experiment={experiment}", f"preset={preset}", "evaluation.ucd_samples=123"])
+    assert cfg2.model.evaluation.ucd_samples == 123
+
+
+def test_no_model_config_states_evaluation_values():
+    for path in sorted((CONF / "model").glob("*.yaml")):
+        node = OmegaConf.load(path)
+        assert OmegaConf.to_container(node, resolve=False).get("evaluation", "${evaluation}") == "${evaluation}", path
+
+
+@pytest.mark.parametrize("alias, category", sorted(PARTS.items()))
+@pytest.mark.parametrize("preset", ["paper", "cpu"])
+def test_recon_part_aliases_are_recon_part_with_a_category(alias, category, preset):
+    old_cfg = compose_cfg([f"experiment={alias}", f"preset={preset}"])
+    new_cfg = compose_cfg(["experiment=recon_part", f"data.category={category}", f"preset={preset}"])
+    assert old_cfg.task_name == alias and new_cfg.task_name == f"recon_{category}"
+    # the same config but for the name (what the run directory and the logger's run are called after)
+    old, new = (OmegaConf.to_container(c, resolve=False) for c in (old_cfg, new_cfg))
+    old.pop("task_name"), new.pop("task_name")
+    assert old == new
+
+
+def test_recon_part_without_a_category_is_one_sentence(tmp_path):
+    with pytest.raises(UserInputError, match="data.category") as info:
+        train(compose_cfg(["experiment=recon_part", *QUIET_CPU]), out_dir=tmp_path)
+    assert "\n" not in str(info.value)
