@@ -30,7 +30,7 @@ from hydra.errors import InstantiationException
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, OmegaConf
 
-from deepcurrents.errors import UserInputError
+from deepcurrents.errors import UserInputError, positive_int
 from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.experiments.run_dir import (
     RunLock,
@@ -119,7 +119,7 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
 
 def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     validate_config(cfg)
-    L.seed_everything(int(cfg.seed), workers=True, verbose=False)
+    L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
     datamodule, module = build(cfg)
     resume = resume_path(cfg.get("ckpt_path"), out_dir)
     if resume is not None:

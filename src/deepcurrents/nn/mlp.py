@@ -22,7 +22,7 @@ class FieldMLP(nn.Module):
                  out_dim: int = 1):
         super().__init__()
         if activation not in ACTIVATIONS:
-            raise ConfigError(f"model.activation='{activation}' is not one of {sorted(ACTIVATIONS)}.")
+            raise ConfigError(f"model.net.activation='{activation}' must be one of {', '.join(sorted(ACTIVATIONS))}.")
         layers: list[nn.Module] = []
         dims = [in_dim] + [width] * depth
         for a, b in itertools.pairwise(dims):

@@ -1,0 +1,326 @@
+"""Bad inputs, one by one: curves, meshes, point clouds, configuration values, checkpoints and app arguments.
+Each is answered by one sentence naming the input (a UserInputError; on the command line: ``error: …``,
+exit status 2, no traceback), before anything is trained or written, and nothing the user saved in the
+output directory is touched. The README's troubleshooting section lists the same inputs."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, compose_cfg
+from omegaconf import OmegaConf
+
+from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
+from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
+from deepcurrents.cli.generate import GenerateConfig, generate
+from deepcurrents.cli.interpolate import InterpolateConfig, interpolate
+from deepcurrents.cli.render import RenderConfig, render_checkpoint
+from deepcurrents.errors import UserInputError
+from deepcurrents.experiments.runner import train
+
+TINY = [*QUIET_CPU, *TINY_NET, *TINY_EVAL, "trainer.max_steps=2"]
+USER_FILE = "my_notes.txt"  # a file of the user's in the output directory: it must survive every refusal
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def cap(height: float = 0.2, centre=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
+    sphere = trimesh.creation.icosphere(2, radius=0.3)
+    keep = sphere.triangles_center[:, 2] > 0.3 - height
+    part = trimesh.Trimesh(sphere.vertices + np.asarray(centre), sphere.faces[keep])
+    part.remove_unreferenced_vertices()
+    return part
+
+
+def circle_rows(n: int = 24, r: float = 0.5) -> str:
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return "\n".join(f"{r * np.cos(a):.6f} {r * np.sin(a):.6f} 0.0" for a in t)
+
+
+# ------------------------------------------------------------------------ inputs of a training run
+# (id, function of a scratch folder → overrides, what the sentence must say)
+def curve_file(name: str, text: str | bytes) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        path = tmp / name
+        path.write_bytes(text) if isinstance(text, bytes) else path.write_text(text)
+        return ["experiment=minimal_curve", f"data.curve={path}"]
+    return make
+
+
+def npy_curve(array: np.ndarray) -> Callable[[Path], list[str]]:
+    def make(tmp: Path) -> list[str]:
+        np.save(tmp / "curve.npy", array)
+        return ["experiment=minimal_curve", f"data.curve={tmp / 'curve.npy'}"]
+    return make
+
+
+def mesh_file(name: str, mesh: trimesh.Trimesh | None = None, text: str | None = None):
+    def make(tmp: Path) -> list[str]:
+        path = tmp / name
+        if mesh is not None:
+            mesh.export(path)
+        elif text is not None:
+            path.write_text(text)
+        return ["experiment=recon_mesh", f"data.mesh={path}"]
+    return make
+
+
+def point_cloud(rows: np.ndarray | None, curve: str | None = "rim", name: str = "cloud.xyz"):
+    def make(tmp: Path) -> list[str]:
+        overrides = ["experiment=recon_points"]
+        if rows is not None:
+            np.savetxt(tmp / name, rows)
+            overrides.append(f"data.points={tmp / name}")
+        else:
+            overrides.append(f"data.points={tmp / 'missing.xyz'}")
+        if curve == "rim":
+            write(tmp / "rim.txt", circle_rows(24, 0.3))
+            overrides.append(f"data.curve={tmp / 'rim.txt'}")
+        elif curve == "far":
+            write(tmp / "far.txt", circle_rows(24, 0.9))
+            overrides.append(f"data.curve={tmp / 'far.txt'}")
+        return overrides
+    return make
+
+
+def cap_cloud(normals: str = "outward") -> np.ndarray:
+    points, faces = trimesh.sample.sample_surface(cap(), 400, seed=0)
+    n = cap().face_normals[faces]
+    if normals == "zero":
+        n = np.zeros_like(n)
+    return np.hstack([points, n])
+
+
+def overrides(*items: str) -> Callable[[Path], list[str]]:
+    return lambda tmp: list(items)
+
+
+TRAIN_CASES = [
+    # curves
+    ("curve missing", overrides("experiment=minimal_curve", "data.curve=/nonexistent/rim.txt"), "does not exist"),
+    ("curve not given", overrides("experiment=minimal_curve"), "data.curve"),
+    ("curve empty file", curve_file("empty.txt", ""), "empty.txt"),
+    ("curve two vertices", curve_file("two.txt", "0 0 0\n0.1 0 0\n"), "two.txt"),
+    ("curve not numbers", curve_file("words.txt", "a b c\nd e f\ng h i\n"), "words.txt"),
+    ("curve two columns", curve_file("flat.txt", "0 0\n1 0\n0 1\n0.5 0.5\n"), "flat.txt"),
+    ("curve NaN", curve_file("nan.txt", "0 0 0\nnan 0.1 0\n0 0.2 0\n0.1 0.1 0.1\n"), "NaN"),
+    ("curve infinite", curve_file("inf.txt", "0 0 0\ninf 0.1 0\n0 0.2 0\n0.1 0.1 0.1\n"), "infinite"),
+    ("curve all one point", curve_file("dot.txt", "0.1 0.1 0.1\n" * 5), "dot.txt"),
+    ("curve collinear", curve_file("line.txt", "0 0 0\n0.1 0 0\n0.2 0 0\n0.3 0 0\n"), "collinear"),
+    ("curve npy four columns", npy_curve(np.zeros((10, 4))), "curve.npy"),
+    ("curve npy garbage", curve_file("junk.npy", b"\x00\x01 definitely not numpy"), "junk.npy"),
+    ("curve obj two vertices", curve_file("pts.obj", "v 0 0 0\nv 0.1 0 0\n"), "pts.obj"),
+    ("curve obj bad index", curve_file("bad.obj", "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nl 1 2 9\n"), "missing vertex"),
+    ("curve unknown format", curve_file("rim.dat3", circle_rows()), "rim.dat3"),
+    ("curve unknown name", overrides("data.curve=spiral"), "spiral"),
+    ("curve_vertices too few", overrides("experiment=minimal_trefoil", "data.curve_vertices=2"), "curve_vertices"),
+    ("curve_scale negative", overrides("experiment=minimal_trefoil", "data.curve_scale=-1"), "scale"),
+    # meshes
+    ("mesh missing", overrides("experiment=recon_mesh", "data.mesh=/nonexistent/part.ply"), "part.ply"),
+    ("mesh closed", mesh_file("ball.ply", trimesh.creation.icosphere(1, radius=0.4)), "ball.ply"),
+    ("mesh empty file", mesh_file("empty.ply", text=""), "empty.ply"),
+    ("mesh text garbage", mesh_file("junk.ply", text="this is not a mesh\n"), "junk.ply"),
+    ("mesh unknown format", mesh_file("part.mesh3", text="v 0 0 0\n"), "part.mesh3"),
+    ("mesh NaN vertex", mesh_file("nan.obj", trimesh.Trimesh(
+        np.array([[0, 0, 0], [0.1, 0, 0], [np.nan, 0.1, 0]]), [[0, 1, 2]], process=False)), "nan.obj"),
+    # point clouds
+    ("points missing", point_cloud(None), "missing.xyz"),
+    ("points without normals", point_cloud(cap_cloud()[:, :3]), "normal"),
+    ("points without curve", point_cloud(cap_cloud(), curve=None), "data.curve"),
+    ("points far from curve", point_cloud(cap_cloud(), curve="far"), "far.txt"),
+    ("points zero normals", point_cloud(cap_cloud("zero")), "normal"),
+    # configuration values
+    ("lr zero", overrides("experiment=minimal_trefoil", "model.optim.lr=0"), r"model\.optim\.lr"),
+    ("gamma above one", overrides("experiment=minimal_trefoil", "model.optim.gamma=1.5"), r"model\.optim\.gamma"),
+    ("step_size zero", overrides("experiment=minimal_trefoil", "model.optim.step_size=0"), "step_size"),
+    ("max_steps negative", overrides("experiment=minimal_trefoil", "trainer.max_steps=-5"), "max_steps"),
+    ("max_steps fraction", overrides("experiment=minimal_trefoil", "trainer.max_steps=2.5"), "max_steps"),
+    ("max_time not a duration", overrides("experiment=minimal_trefoil", "trainer.max_time=soon"), "max_time"),
+    ("num_samples negative", overrides("experiment=minimal_trefoil", "data.num_samples=-1"), "num_samples"),
+    ("mass_samples zero", overrides("experiment=minimal_trefoil", "evaluation.mass_samples=0"), "mass_samples"),
+    ("depth zero", overrides("experiment=minimal_trefoil", "model.net.depth=0"), "depth"),
+    ("activation unknown", overrides("experiment=minimal_trefoil", "model.net.activation=tanhh"), "activation"),
+    ("dimension four", overrides("experiment=minimal_trefoil", "data.dim=4"), "data.dim"),
+    ("checkpoint interval zero", overrides("experiment=minimal_trefoil",
+                                           "callbacks.model_checkpoint.every_n_train_steps=0"), "every_n_train_steps"),
+    ("mesh method unknown", overrides("experiment=minimal_trefoil", "evaluation.mesh.method=marching"), "method"),
+    ("sampling kind unknown", overrides("experiment=minimal_trefoil", "data.sampling.kind=lucky"), "sampling"),
+    ("seed not a number", overrides("experiment=minimal_trefoil", "seed=abc"), "seed"),
+    ("grid resolution two", overrides("experiment=minimal_grid", "model.grid.resolution=2"), "resolution"),
+    ("family folder missing", overrides("experiment=latent_hands", "data.path=/nonexistent/hands"), "hands"),
+    # checkpoints to resume from
+    ("resume missing", overrides("experiment=minimal_trefoil", "ckpt_path=/nonexistent/last.ckpt"), "does not exist"),
+    ("resume text file", lambda tmp: ["experiment=minimal_trefoil",
+                                      f"ckpt_path={write(tmp / 'notes.ckpt', 'my notes')}"], "corrupt"),
+]
+
+
+@pytest.mark.parametrize("case, make, match", TRAIN_CASES, ids=[c[0] for c in TRAIN_CASES])
+def test_bad_training_input_is_one_sentence_and_writes_nothing(tmp_path, case, make, match):
+    out = tmp_path / "run"
+    out.mkdir()
+    write(out / USER_FILE, "keep me")
+    cfg = compose_cfg([*TINY, *make(tmp_path)])
+    with pytest.raises(UserInputError, match=match) as info:
+        train(cfg, out_dir=out)
+    message = str(info.value)
+    assert "\n" not in message and len(message) < 400, message
+    assert sorted(p.name for p in out.iterdir()) == [USER_FILE] and (out / USER_FILE).read_text() == "keep me"
+
+
+# --------------------------------------------------------------------------------- app arguments
+@pytest.fixture(scope="module")
+def trefoil(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("trefoil")
+    train(compose_cfg(["experiment=minimal_trefoil", *TINY]), out_dir=out)
+    return out / "checkpoints" / "last.ckpt"
+
+
+@pytest.fixture(scope="module")
+def family(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("family")
+    (root / "parts").mkdir()
+    cap(0.2, (-0.4, 0, 0)).export(root / "parts" / "000_low.ply")
+    cap(0.25, (0.4, 0, 0)).export(root / "parts" / "001_high.ply")
+    train(compose_cfg(["experiment=latent_hands", f"data.path={root / 'parts'}", "data.meshes_per_batch=2",
+                       "data.augment=false", "model.latent_dim=8", "model.boundary_dim=8", "data.num_workers=0",
+                       "data.num_surface_samples=64", *TINY]), out_dir=root / "run")
+    return root / "run" / "checkpoints" / "last.ckpt"
+
+
+def app_cfg(schema, **values):
+    cfg = OmegaConf.structured(schema)
+    for key, value in values.items():
+        OmegaConf.update(cfg, key, value)
+    return cfg
+
+
+def foreign(tmp: Path) -> Path:
+    torch.save({"state_dict": {"w": torch.zeros(2)}, "epoch": 3}, tmp / "foreign.ckpt")
+    return tmp / "foreign.ckpt"
+
+
+def truncated(tmp: Path, good: Path) -> Path:
+    (tmp / "torn.ckpt").write_bytes(good.read_bytes()[:5000])
+    return tmp / "torn.ckpt"
+
+
+def unknown_class(tmp: Path, good: Path) -> Path:
+    ckpt = torch.load(good, weights_only=True)
+    ckpt["deepcurrents"]["module"] = "deepcurrents.models.NoSuchModel"
+    torch.save(ckpt, tmp / "unknown.ckpt")
+    return tmp / "unknown.ckpt"
+
+
+# (id, app, which checkpoint, function of (scratch folder, checkpoint) → app settings, what the sentence says)
+APP_CASES = [
+    ("app checkpoint missing", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(tmp / "none.ckpt")}, "does not exist"),
+    ("app checkpoint is a folder", render_checkpoint, RenderConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(tmp)}, "is not a file"),
+    ("app checkpoint text", evaluate_checkpoint, EvaluateConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(write(tmp / "notes.ckpt", "notes"))}, "corrupt"),
+    ("app checkpoint truncated", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(truncated(tmp, ck))}, "truncated"),
+    ("app checkpoint foreign", render_checkpoint, RenderConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(foreign(tmp))}, "not written by DeepCurrents"),
+    ("app checkpoint unknown class", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(unknown_class(tmp, ck))}, "does not have"),
+    ("extract resolution four", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "resolution": 4}, "resolution=4"),
+    ("extract format unknown", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "format": "xyz"}, "format='xyz'"),
+    ("extract method unknown", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "method": "magic"}, "method='magic'"),
+    ("render frames zero", render_checkpoint, RenderConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "turntable": True, "frames": 0}, "frames=0"),
+    ("render width negative", render_checkpoint, RenderConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "camera.width": -3}, "camera.width"),
+    ("device unknown", render_checkpoint, RenderConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "device": "tpu7"}, "device='tpu7'"),
+    ("evaluate target missing", evaluate_checkpoint, EvaluateConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "target": str(tmp / "nope.ply")}, "nope.ply"),
+    ("evaluate target not a mesh", evaluate_checkpoint, EvaluateConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "target": str(write(tmp / "t.ply", "not a mesh"))}, "t.ply"),
+    ("evaluate samples zero", evaluate_checkpoint, EvaluateConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "samples": 0}, "samples"),
+    ("interpolate on a single current", interpolate, InterpolateConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck)}, "CurrentModule"),
+    ("interpolate mode unknown", interpolate, InterpolateConfig, "family",
+     lambda tmp, ck: {"ckpt_path": str(ck), "mode": "sideways"}, "mode"),
+    ("interpolate shape out of range", interpolate, InterpolateConfig, "family",
+     lambda tmp, ck: {"ckpt_path": str(ck), "b": 7}, "7"),
+    ("generate curve missing", generate, GenerateConfig, "family",
+     lambda tmp, ck: {"ckpt_path": str(ck), "curve": str(tmp / "rim.txt")}, "rim.txt"),
+    ("generate latent out of range", generate, GenerateConfig, "family",
+     lambda tmp, ck: {"ckpt_path": str(ck), "curve": "circle", "latent": 9}, "latent"),
+]
+
+
+@pytest.mark.parametrize("case, body, schema, which, settings, match", APP_CASES, ids=[c[0] for c in APP_CASES])
+def test_bad_app_input_is_one_sentence_and_writes_nothing(request, tmp_path, case, body, schema, which, settings,
+                                                          match):
+    ckpt = request.getfixturevalue(which)
+    out = tmp_path / "out"
+    out.mkdir()
+    write(out / USER_FILE, "keep me")
+    values = settings(tmp_path, ckpt)
+    if "out_dir" in schema.__dataclass_fields__:
+        values.setdefault("out_dir", str(out))
+    with pytest.raises(UserInputError, match=match) as info:
+        body(app_cfg(schema, **values))
+    message = str(info.value)
+    assert "\n" not in message and len(message) < 400, message
+    assert sorted(p.name for p in out.iterdir()) == [USER_FILE] and (out / USER_FILE).read_text() == "keep me"
+
+
+# ------------------------------------------------------------------------ the same on the command line
+ENV = {**os.environ, "OMP_NUM_THREADS": "1"}
+CLI_CASES = [
+    ("train: curve with two vertices", lambda tmp: [
+        sys.executable, str(ROOT / "train.py"), "experiment=minimal_curve", "logger=none",
+        f"data.curve={write(tmp / 'two.txt', '0 0 0' + chr(10) + '0.1 0 0')}", f"hydra.run.dir={tmp / 'run'}"],
+     "two.txt"),
+    ("train: closed mesh", lambda tmp: [
+        sys.executable, str(ROOT / "train.py"), "experiment=recon_mesh", "logger=none",
+        f"data.mesh={export(trimesh.creation.icosphere(1, radius=0.4), tmp / 'ball.ply')}",
+        f"hydra.run.dir={tmp / 'run'}"], "ball.ply"),
+    ("train: learning rate", lambda tmp: [
+        sys.executable, str(ROOT / "train.py"), "experiment=minimal_trefoil", "logger=none", "model.optim.lr=-1",
+        f"hydra.run.dir={tmp / 'run'}"], "model.optim.lr"),
+    ("extract: text checkpoint", lambda tmp: [
+        sys.executable, "-m", "deepcurrents.extract", f"ckpt_path={write(tmp / 'n.ckpt', 'notes')}"], "n.ckpt"),
+    ("render: no checkpoint given", lambda tmp: [sys.executable, "-m", "deepcurrents.render"], "ckpt_path"),
+]
+
+
+def export(mesh: trimesh.Trimesh, path: Path) -> Path:
+    mesh.export(path)
+    return path
+
+
+@pytest.mark.slow  # a process each (about 10 s to start on a busy 2-core machine)
+@pytest.mark.parametrize("case, command, match", CLI_CASES, ids=[c[0] for c in CLI_CASES])
+def test_bad_input_on_the_command_line_exits_2_with_one_sentence(tmp_path, case, command, match):
+    proc = subprocess.run(command(tmp_path), capture_output=True, text=True, cwd=tmp_path, timeout=300, env=ENV)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr + proc.stdout
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and match in errors[0], proc.stderr[-2000:]
+    assert not (tmp_path / "run" / "checkpoints").exists()
+
+
+def test_the_suite_covers_at_least_forty_distinct_inputs():
+    ids = [c[0] for c in TRAIN_CASES] + [c[0] for c in APP_CASES] + [c[0] for c in CLI_CASES]
+    assert len(set(ids)) == len(ids) >= 40
