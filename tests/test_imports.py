@@ -139,6 +139,27 @@ def test_lower_rooms_do_not_import_upper_ones(graph, lower):
     assert not bad, f"{lower} must not import {', '.join(FORBIDDEN_BELOW[lower])}:\n" + "\n".join(bad)
 
 
+# docs/architecture.md: a room imports only from rooms on lower layers (the top-level aliases call cli/)
+LAYERS = {"errors": 1, "losses": 1, "geometry": 2, "nn": 3, "data": 3, "eval": 3, "models": 4, "baselines": 5,
+          "experiments": 6, "cli": 7, "train": 8, "render": 8, "extract": 8, "evaluate": 8, "interpolate": 8,
+          "generate": 8, "": 8}
+
+
+def test_every_room_has_a_layer(graph):
+    assert {room(m) for m in graph} <= set(LAYERS), "a new room: give it a layer here and in docs/architecture.md"
+
+
+def test_rooms_import_only_from_lower_layers(graph):
+    bad = [
+        f"{module} (layer {LAYERS[room(module)]}) imports {target} (layer {LAYERS[room(target)]}, line {line})"
+        for module, (everywhere, _) in graph.items()
+        for target, line in everywhere
+        if target.startswith(f"{PACKAGE}.") and room(target) != room(module)
+        and LAYERS.get(room(target), 99) >= LAYERS.get(room(module), 0)
+    ]
+    assert not bad, "imports against the layers of docs/architecture.md:\n" + "\n".join(bad)
+
+
 def find_cycles(edges: dict[str, set[str]]) -> list[list[str]]:
     """The strongly connected components with more than one module (or a self-loop), by Tarjan's algorithm."""
     index: dict[str, int] = {}
