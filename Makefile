@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 RUN_DIR ?= outputs/quickstart
 
-.PHONY: setup run test lint bench clean data
+.PHONY: setup run test test-fast lint bench clean data
 
 setup: $(STAMP)
 
@@ -34,8 +34,12 @@ run: setup
 	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu hydra.run.dir=$(RUN_DIR)
 	@echo "Results in $(RUN_DIR): metrics.json, mesh.ply, mesh.png, checkpoints/last.ckpt"
 
+# every test; `make test-fast` skips the ones marked slow (under a minute on 2 idle cores)
 test: setup $(ANNY_STAMP)
 	$(BIN)/python -m pytest -q
+
+test-fast: setup
+	$(BIN)/python -m pytest -q -m "not slow"
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks train.py
