@@ -96,9 +96,9 @@ def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, mo
     original = current_module.current_loss
     calls = {"n": 0}
 
-    def poisoned(omega, metric=None):
+    def poisoned(omega, metric=None, weight=None):
         calls["n"] += 1
-        loss = original(omega, metric)
+        loss = original(omega, metric, weight)
         return loss * float("nan") if calls["n"] > 4 else loss
 
     monkeypatch.setattr(current_module, "current_loss", poisoned)
