@@ -281,6 +281,28 @@ def test_auto_without_a_checkpoint_starts_fresh_and_requeued_slurm_jobs_resume(t
     newer.write_bytes(b"x")
     os.utime(older, ns=(1_000_000_000, 1_000_000_000))
     assert run_dir.resume_path("auto", tmp_path) == newer
+    assert run_dir.resume_path(None, tmp_path) == newer  # Lightning's SLURM checkpoint: resumed, and checked
+    newer.unlink()
     assert run_dir.resume_path(None, tmp_path) is None  # a fresh run does not resume by itself
     monkeypatch.setenv("SLURM_RESTART_COUNT", "1")  # a requeued job does
-    assert run_dir.resume_path(None, tmp_path) == newer
+    assert run_dir.resume_path(None, tmp_path) == older
+
+
+def test_each_batch_is_a_function_of_seed_rank_and_step_whatever_the_workers():
+    """Batch s is the same with 0 or 2 loader workers and when the stream starts at s (a resumed run)."""
+    from torch.utils.data import DataLoader
+
+    from deepcurrents.data import AmbientSamples
+
+    def batches(start: int, workers: int, count: int) -> list[torch.Tensor]:
+        loader = DataLoader(AmbientSamples(3, 16, seed=7, rank=1, start_step=start), batch_size=None,
+                            num_workers=workers)
+        stream = iter(loader)
+        return [next(stream)["x"] for _ in range(count)]
+
+    serial = batches(0, 0, 6)
+    assert all(torch.equal(a, b) for a, b in zip(serial, batches(0, 2, 6), strict=True))
+    assert all(torch.equal(a, b) for a, b in zip(serial[3:], batches(3, 0, 3), strict=True))
+    assert not torch.equal(serial[0], serial[1])
+    other_rank = next(iter(AmbientSamples(3, 16, seed=7, rank=0)))["x"]
+    assert not torch.equal(serial[0], other_rank)

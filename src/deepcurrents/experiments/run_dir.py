@@ -149,9 +149,11 @@ def newest_checkpoint(out_dir: Path) -> Path | None:
 def resume_path(ckpt_path: str | None, out_dir: Path) -> Path | None:
     """The checkpoint a run resumes from. ``ckpt_path``: a file; ``auto``: the newest checkpoint in the run
     directory, or a fresh start if it has none (what a cluster job that may be requeued passes); None: a
-    fresh start, except in a requeued SLURM job (SLURM_RESTART_COUNT > 0), which resumes like ``auto``."""
+    fresh start, except in a requeued SLURM job (SLURM_RESTART_COUNT > 0) or a directory holding Lightning's
+    SLURM ``hpc_ckpt_*.ckpt`` (which Lightning would load by itself, unchecked), which resume like ``auto``."""
     if ckpt_path is None:
-        if int(os.environ.get("SLURM_RESTART_COUNT", "0") or 0) <= 0:
+        requeued = int(os.environ.get("SLURM_RESTART_COUNT", "0") or 0) > 0
+        if not requeued and not any(Path(out_dir).glob("hpc_ckpt_*.ckpt")):
             return None
         ckpt_path = "auto"
     if str(ckpt_path) == "auto":
