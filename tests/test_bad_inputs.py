@@ -158,6 +158,9 @@ TRAIN_CASES = [
     ("sampling kind unknown", overrides("experiment=minimal_trefoil", "data.sampling.kind=lucky"), "sampling"),
     ("seed not a number", overrides("experiment=minimal_trefoil", "seed=abc"), "seed"),
     ("grid resolution two", overrides("experiment=minimal_grid", "model.grid.resolution=2"), "resolution"),
+    ("trainer devices zero", overrides("experiment=minimal_trefoil", "trainer.devices=0"), r"trainer\.devices=0"),
+    ("trainer precision unknown", overrides("experiment=minimal_trefoil", "trainer.precision=bogus"),
+     "trainer.precision=bogus"),
     ("family folder missing", overrides("experiment=latent_hands", "data.path=/nonexistent/hands"), "hands"),
     # checkpoints to resume from
     ("resume missing", overrides("experiment=minimal_trefoil", "ckpt_path=/nonexistent/last.ckpt"), "does not exist"),

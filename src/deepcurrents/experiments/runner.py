@@ -30,7 +30,7 @@ from hydra.errors import InstantiationException
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, OmegaConf
 
-from deepcurrents.errors import UserInputError, positive_int
+from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.experiments.run_dir import (
     RunLock,
@@ -86,6 +86,20 @@ def build_callbacks(cfg: DictConfig, out_dir: Path) -> list:
     return callbacks
 
 
+def build_trainer(cfg: DictConfig, **kwargs) -> L.Trainer:
+    """The Lightning Trainer of ``cfg.trainer``; settings Lightning cannot honour here (``trainer=gpu`` without
+    a GPU, ``devices=0``, an unknown precision, an accelerator whose package is missing) are one sentence."""
+    try:
+        return instantiate(cfg.trainer, **kwargs)
+    except InstantiationException as err:
+        cause = err.__cause__ if err.__cause__ is not None else err
+        text = " ".join(str(cause).split()).rstrip(".") or type(cause).__name__
+        chosen = ", ".join(f"trainer.{k}={cfg.trainer[k]}" for k in ("accelerator", "devices", "strategy", "precision")
+                           if k in cfg.trainer)
+        raise ConfigError(f"Lightning cannot build a trainer from {chosen} here: {text} (trainer=cpu runs "
+                          "anywhere).") from None
+
+
 def build(cfg: DictConfig):
     """The DataModule and the LightningModule of a run (validates the inputs; trains nothing)."""
     datamodule = instantiate(cfg.data, _convert_="all")
@@ -126,8 +140,8 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
         check_resumable(resume, module)
     check_free_space(out_dir, module)
     last = out_dir / "checkpoints" / "last.ckpt"
-    trainer: L.Trainer = instantiate(
-        cfg.trainer,
+    trainer: L.Trainer = build_trainer(
+        cfg,
         logger=build_logger(cfg, out_dir),
         callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), PreemptionCheckpoint(last)],
         plugins=[AtomicCheckpointIO()],
