@@ -258,6 +258,8 @@ APP_CASES = [
      lambda tmp, ck: {"ckpt_path": str(ck), "target": str(write(tmp / "t.ply", "not a mesh"))}, "t.ply"),
     ("evaluate samples zero", evaluate_checkpoint, EvaluateConfig, "trefoil",
      lambda tmp, ck: {"ckpt_path": str(ck), "samples": 0}, "samples"),
+    ("app out_dir under a file", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "out_dir": str(write(tmp / "f.txt", "mine") / "sub")}, "cannot be created"),
     ("interpolate on a single current", interpolate, InterpolateConfig, "trefoil",
      lambda tmp, ck: {"ckpt_path": str(ck)}, "CurrentModule"),
     ("interpolate mode unknown", interpolate, InterpolateConfig, "family",

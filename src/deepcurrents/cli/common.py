@@ -41,7 +41,12 @@ def output_dir(ckpt_path: str, out_dir: str | None) -> Path:
     """``out_dir`` if given, else a folder named after the checkpoint beside it
     (``run/checkpoints/last.ckpt`` → ``run/checkpoints/last/``)."""
     path = Path(out_dir) if out_dir else Path(ckpt_path).expanduser().with_suffix("")
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # a file in the way, a read-only disk, no permission
+        where = f"out_dir='{out_dir}'" if out_dir else f"The folder beside the checkpoint, '{path}',"
+        raise UserInputError(f"{where} cannot be created ({err.strerror or type(err).__name__}); choose a "
+                             "writable out_dir=….") from None
     return path
 
 
