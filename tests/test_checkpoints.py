@@ -188,3 +188,23 @@ def test_crafted_checkpoint_is_refused_by_every_app(crafted, tmp_path, app, args
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "could run code" in errors[0] and "shared.ckpt" in errors[0]
     assert not marker.exists()
+
+
+def test_a_full_disk_while_saving_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
+    import errno
+
+    from deepcurrents.errors import UserInputError
+    from deepcurrents.models import checkpointing
+
+    path = tmp_path / "last.ckpt"
+    checkpointing.atomic_torch_save({"step": 1}, path)
+
+    def full(obj, fh):
+        fh.write(b"partial")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(checkpointing.torch, "save", full)
+    with pytest.raises(UserInputError, match=r"could not be written \(No space left on device\) \(the previous one"):
+        checkpointing.atomic_torch_save({"step": 2}, path)
+    assert torch.load(path, weights_only=True) == {"step": 1}
+    assert [p.name for p in tmp_path.iterdir()] == ["last.ckpt"]  # no temporary file left

@@ -27,6 +27,8 @@ import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from deepcurrents.errors import UserInputError
+
 log = logging.getLogger("deepcurrents")
 
 PLAIN_SCALARS = (str, int, float, bool, type(None))
@@ -61,17 +63,22 @@ def plain_data(obj: Any, where: str = "checkpoint") -> Any:
 def atomic_torch_save(obj: Any, path: str | Path) -> None:
     """torch.save into a temporary file in the same directory, fsync, then os.replace onto ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
             torch.save(obj, fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+    except BaseException as err:
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(err, OSError):  # a full disk or a vanished directory in the middle of a run
+            kept = " (the previous one is kept)" if path.exists() else ""
+            raise UserInputError(f"The checkpoint {path} could not be written ({err.strerror or type(err).__name__})"
+                                 f"{kept}; free some space or choose another hydra.run.dir.") from None
         raise
 
 
