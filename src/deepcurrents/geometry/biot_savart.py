@@ -27,22 +27,51 @@ def loop_segments(loops: Sequence[torch.Tensor]) -> tuple[torch.Tensor, torch.Te
     return starts, ends
 
 
-def _biot_savart_segments(points: torch.Tensor, starts: torch.Tensor, ends: torch.Tensor) -> torch.Tensor:
-    """α at points (N, 3) from segments (S, 3)->(S, 3); broadcasts (N, S, 3) in memory."""
-    seg = ends - starts
-    t = seg / seg.norm(dim=-1, keepdim=True)  # (S, 3)
-    r0 = starts.unsqueeze(0) - points.unsqueeze(1)  # (N, S, 3), from x to the initial vertex
-    r1 = ends.unsqueeze(0) - points.unsqueeze(1)
-    cross = torch.linalg.cross(t.expand_as(r0), r0, dim=-1)  # t × r0
-    cross_sq = (cross * cross).sum(-1)  # |t × r0|², the squared distance to the segment's line
+def _next_vertex(loops: Sequence[torch.Tensor], device: torch.device) -> torch.Tensor:
+    """Index of each vertex's successor in the concatenated loops (the last of a loop → its first). → (S,)."""
+    nxt, base = [], 0
+    for loop in loops:
+        m = loop.shape[0]
+        nxt.append((torch.arange(m, device=device) + 1) % m + base)
+        base += m
+    return torch.cat(nxt)
+
+
+def _cross_matrices(t: torch.Tensor) -> torch.Tensor:
+    """B with (t_i × x)_k = (x @ B[k])_i for every segment i: the cross product as three (3, S) matrices,
+    so that t × (v − x) for all point–segment pairs is one matrix product per component. t (S, 3) → (3, 3, S)."""
+    zero = torch.zeros_like(t[:, 0])
+    tx, ty, tz = t.unbind(1)
+    # rows: (t × x)_x = ty·z − tz·y, (t × x)_y = tz·x − tx·z, (t × x)_z = tx·y − ty·x
+    return torch.stack([torch.stack([zero, -tz, ty]), torch.stack([tz, zero, -tx]), torch.stack([-ty, tx, zero])])
+
+
+def _biot_savart_chunk(points: torch.Tensor, verts: torch.Tensor, nxt: torch.Tensor, t: torch.Tensor,
+                       length: torch.Tensor, t_cross_v: torch.Tensor, t_dot_v: torch.Tensor,
+                       cross_mats: torch.Tensor) -> torch.Tensor:
+    """α at points (n, 3) from closed polylines given per segment i (start vertex i, end vertex nxt[i]).
+
+    Everything is an (n, S) matrix, never (n, S, 3): with r0 = v_i − x and r1 = v_nxt − x,
+    t × r0 = t × v_i − t × x and t·r0 = t·v_i − t·x are matrix products, t·r1 = t·r0 + |seg|, |r| is computed
+    once per vertex (each vertex ends one segment and starts the next), and Σ_i w_i (t_i × r0_i) =
+    W (t × v) − (W t) × x. Rounding is that of the direct form, whose r0 = v − x also carries the O(1)
+    coordinates' rounding where r0 is small.
+    """
+    r2 = None
+    for k in range(3):  # |v − x|² per vertex, from the differences themselves (accurate next to Γ)
+        d = verts[:, k].unsqueeze(0) - points[:, k : k + 1]
+        r2 = d * d if r2 is None else r2 + d * d
+    rn = r2.clamp_min(1e-30).sqrt()  # (n, S): |r0| of segment i is rn[:, i], |r1| is rn[:, nxt[i]]
+    cross_sq = None
+    for k in range(3):  # |t × r0|², the squared distance to the segment's line
+        c = torch.addmm(t_cross_v[:, k], points, cross_mats[k], alpha=-1.0)
+        cross_sq = c * c if cross_sq is None else cross_sq + c * c
+    t_r0 = torch.addmm(t_dot_v, points, t.T, alpha=-1.0)
+    coef = (t_r0 + length) / rn[:, nxt] - t_r0 / rn
     safe = cross_sq > _LINE_EPS
-    r0n = r0.norm(dim=-1).clamp_min(1e-30)
-    r1n = r1.norm(dim=-1).clamp_min(1e-30)
-    coef = (t * (r1 / r1n.unsqueeze(-1) - r0 / r0n.unsqueeze(-1))).sum(-1)
     # double-where keeps the gradient finite where the denominator vanishes
-    denom = torch.where(safe, cross_sq, torch.ones_like(cross_sq))
-    weight = torch.where(safe, coef / denom, torch.zeros_like(coef))
-    return (weight.unsqueeze(-1) * cross).sum(1)
+    weight = torch.where(safe, coef / torch.where(safe, cross_sq, 1.0), 0.0)  # (n, S)
+    return weight @ t_cross_v - torch.linalg.cross(weight @ t, points, dim=-1)
 
 
 def biot_savart(
@@ -52,12 +81,16 @@ def biot_savart(
 ) -> torch.Tensor:
     """Biot–Savart field α_Γ(x) = ∮_Γ dℓ × r / |r|³ of closed polygonal loops, in closed form.
 
+    For segment i with unit tangent t_i and r0_i, r1_i the vectors from x to its initial and final vertex,
+    α(x) = Σ_i (t_i·(r̂1_i − r̂0_i)) (t_i × r0_i) / |t_i × r0_i|²; a point on a segment's line gets nothing
+    from that segment (zero off the segment, undefined on it).
+
     Args:
         points: (N, 3) query points.
         loops: list of (M_i, 3) closed loops (vertex order is the orientation; no repeated end vertex),
             or a single (M, 3) tensor.
-        chunk_size: points per chunk; the work per chunk is (chunk, S, 3). Defaults so that one chunk
-            holds about 2^24 point–segment pairs, which bounds memory for millions of points.
+        chunk_size: points per chunk; the work per chunk is about a dozen (chunk, S) matrices. Defaults so
+            that one chunk holds about 2^22 point–segment pairs, which bounds memory for millions of points.
 
     Returns:
         (N, 3), same dtype and device as ``points``; differentiable in ``points`` and the loops.
@@ -66,14 +99,21 @@ def biot_savart(
     if isinstance(loops, torch.Tensor):
         loops = [loops]
     loops = [loop.to(dtype=points.dtype, device=points.device) for loop in loops]
-    starts, ends = loop_segments(loops)
+    verts = torch.cat(loops, dim=0)
+    nxt = _next_vertex(loops, points.device)
+    # per-segment quantities, once per call (not per chunk)
+    seg = verts[nxt] - verts
+    length = seg.norm(dim=-1)
+    t = seg / length.unsqueeze(-1)
+    t_cross_v = torch.linalg.cross(t, verts, dim=-1)
+    t_dot_v = (t * verts).sum(-1)
+    mats = _cross_matrices(t)
+    args = (verts, nxt, t, length, t_cross_v, t_dot_v, mats)
     if chunk_size is None:
-        chunk_size = max(1024, (1 << 24) // max(1, starts.shape[0]))
+        chunk_size = max(256, (1 << 22) // max(1, verts.shape[0]))
     if points.shape[0] <= chunk_size:
-        return _biot_savart_segments(points, starts, ends)
-    return torch.cat(
-        [_biot_savart_segments(p, starts, ends) for p in torch.split(points, chunk_size)], dim=0
-    )
+        return _biot_savart_chunk(points, *args)
+    return torch.cat([_biot_savart_chunk(p, *args) for p in torch.split(points, chunk_size)], dim=0)
 
 
 def biot_savart_2d(points: torch.Tensor, poles: torch.Tensor, signs: torch.Tensor) -> torch.Tensor:
@@ -97,26 +137,42 @@ def biot_savart_2d(points: torch.Tensor, poles: torch.Tensor, signs: torch.Tenso
     return (inv.unsqueeze(-1) * jd).sum(1)
 
 
-def solid_angle(points: torch.Tensor, loops: Sequence[torch.Tensor] | torch.Tensor) -> torch.Tensor:
+def solid_angle(points: torch.Tensor, loops: Sequence[torch.Tensor] | torch.Tensor,
+                chunk_size: int | None = None) -> torch.Tensor:
     """Solid angle Ω_Γ(x) of closed loops seen from points (one branch, modulo 4π), with α_Γ = ∇Ω_Γ.
 
     Sums the signed solid angles of the triangles (c, v_i, v_{i+1}) seen from x, c the loop's centroid
     (Van Oosterom–Strackee formula); the branch cut is that fan of triangles. For the counter-clockwise
     circle of radius R in the xy-plane, Ω(0, 0, z) = 2π(1 − z/√(z² + R²)) for z > 0.
 
-    points: (N, 3) → (N,).
+    points: (N, 3) → (N,). ``chunk_size``: points per chunk (default: about 2^22 point–vertex pairs).
     """
     if isinstance(loops, torch.Tensor):
         loops = [loops]
+    loops = [loop.to(dtype=points.dtype, device=points.device) for loop in loops]
+    if chunk_size is None:
+        chunk_size = max(256, (1 << 22) // max(1, sum(loop.shape[0] for loop in loops)))
+    return torch.cat([_solid_angle_chunk(p, loops) for p in torch.split(points, chunk_size)])
+
+
+def _solid_angle_chunk(points: torch.Tensor, loops: Sequence[torch.Tensor]) -> torch.Tensor:
+    """Van Oosterom–Strackee with (n, M) matrices per coordinate (no (n, M, 3) tensors, no rolled copies of
+    them): b = v − x per vertex, d = b of the next vertex by indexing. (n, 3) → (n,)."""
     total = torch.zeros(points.shape[0], dtype=points.dtype, device=points.device)
     for loop in loops:
-        loop = loop.to(dtype=points.dtype, device=points.device)
-        c = loop.mean(0)
-        a = (c - points).unsqueeze(1)  # (N, 1, 3)
-        b = loop.unsqueeze(0) - points.unsqueeze(1)  # (N, M, 3)
-        d = torch.roll(b, shifts=-1, dims=1)
-        an, bn, dn = a.norm(dim=-1), b.norm(dim=-1), d.norm(dim=-1)
-        triple = (a * torch.linalg.cross(b, d, dim=-1)).sum(-1)  # (N, M)
-        denom = an * bn * dn + (a * b).sum(-1) * dn + (a * d).sum(-1) * bn + (b * d).sum(-1) * an
+        m = loop.shape[0]
+        nxt = (torch.arange(m, device=loop.device) + 1) % m
+        a = loop.mean(0).unsqueeze(0) - points  # (n, 3): x to the centroid
+        b = [loop[:, k].unsqueeze(0) - points[:, k : k + 1] for k in range(3)]  # (n, M) each
+        d = [bk[:, nxt] for bk in b]
+        an = a.norm(dim=-1, keepdim=True)  # (n, 1)
+        bn = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt()
+        dn = bn[:, nxt]
+        ab = a[:, :1] * b[0] + a[:, 1:2] * b[1] + a[:, 2:] * b[2]
+        ad = ab[:, nxt]
+        bd = b[0] * d[0] + b[1] * d[1] + b[2] * d[2]
+        triple = (a[:, :1] * (b[1] * d[2] - b[2] * d[1]) + a[:, 1:2] * (b[2] * d[0] - b[0] * d[2])
+                  + a[:, 2:] * (b[0] * d[1] - b[1] * d[0]))  # a · (b × d)
+        denom = an * bn * dn + ab * dn + ad * bn + bd * an
         total = total - 2.0 * torch.atan2(triple, denom).sum(1)
     return total
