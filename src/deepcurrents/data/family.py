@@ -96,6 +96,21 @@ def family_files(path: str | Path | Sequence[str], max_meshes: int | None = None
     return files
 
 
+def split_held_out(files: Sequence[Path], max_meshes: int | None, held_out: int) -> tuple[list[Path], list[Path]]:
+    """(training files, held-out files): the last ``held_out`` files are kept out of training, the first
+    ``max_meshes`` of the others (all when None) are trained. ConfigError when nothing is left to train."""
+    if isinstance(held_out, bool) or not isinstance(held_out, (int, np.integer)) or held_out < 0:
+        raise ConfigError(f"data.held_out={held_out!r} must be zero or a positive integer.")
+    if held_out >= len(files):
+        raise ConfigError(f"data.held_out={held_out} leaves no mesh to train on: the family has {len(files)}.")
+    train, kept_out = list(files[: len(files) - held_out]), list(files[len(files) - held_out:])
+    if max_meshes is not None:
+        if int(max_meshes) < 1:
+            raise ConfigError(f"data.max_meshes={max_meshes} must be a positive integer (or null for all).")
+        train = train[: int(max_meshes)]
+    return train, kept_out
+
+
 def read_family_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float64 and faces (F, 3) int64 of a triangle mesh file, in the file's order."""
     mesh = read_mesh(path, "Family mesh", FamilyError)
@@ -214,7 +229,9 @@ class FamilyDataModule(L.LightningDataModule):
 
     Args:
         path: a folder of meshes (``data/<source>/<category>``) or a list of mesh files.
-        max_meshes: use only the first ``max_meshes`` files (None: all).
+        max_meshes: train only the first ``max_meshes`` files (None: all).
+        held_out: the last ``held_out`` files are not trained: the final evaluation fits their latent codes
+            alone (decoder and encoders frozen) and reports their UCD beside the training shapes'.
         meshes_per_batch: shapes per step and rank (paper: 8).
         num_samples: ambient samples per mesh (paper: 4000); num_surface_samples: surface samples per mesh.
         augment, rotation_deg, scale_range, shift, bound: the augmentation (``data.augment``).
@@ -226,6 +243,7 @@ class FamilyDataModule(L.LightningDataModule):
         self,
         path: str | Sequence[str],
         max_meshes: int | None = None,
+        held_out: int = 0,
         meshes_per_batch: int = 8,
         num_samples: int = 4000,
         num_surface_samples: int = 4000,
@@ -251,7 +269,10 @@ class FamilyDataModule(L.LightningDataModule):
             raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
         self.ranges = AugmentationRanges(float(rotation_deg), (float(scale_range[0]), float(scale_range[1])),
                                          float(shift), float(bound))
-        self.meshes = load_family(family_files(path, max_meshes), bound=self.ranges.bound)
+        train, kept_out = split_held_out(family_files(path), max_meshes, held_out)
+        # loaded together: held-out loops are matched to the same reference (the first training mesh)
+        loaded = load_family(train + kept_out, bound=self.ranges.bound)
+        self.meshes, self.held_out_meshes = loaded[: len(train)], loaded[len(train):]
         self.meshes_per_batch, self.num_samples = meshes_per_batch, num_samples
         self.num_surface_samples, self.augment = num_surface_samples, augment
         self.boundary_sigma, self.boundary_weighting = boundary_sigma, boundary_weighting

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepcurrents.errors import ConfigError, UserInputError
+from deepcurrents.data.family import collate_shapes
+from deepcurrents.data.targets import MeshTarget, target_sample
+from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
 from deepcurrents.eval.plots import plot_mesh_grid
@@ -50,6 +53,11 @@ class AutodecoderModule(DeepCurrentsModule):
         optim: {"lr", "step_size", "gamma"}.
         latent_dim, boundary_dim, latent_std: sizes of z and z_Γ (paper 256, 256) and the codes' initial std.
         surface_weight, surface_margin: weight and δ of the surface hinge loss (paper: 1, 0.01).
+        interpolation_weight: weight of the mass loss (Euclidean metric, B = I) of random interpolants between
+            the batch's shapes (latent codes and boundaries blended with one t ~ U[0, 1] per pair), so what lies
+            between training shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
+        latent_fit: {"steps", "lr", "num_samples", "num_surface_samples"} of ``fit_latent`` for the shapes held
+            out of training (``data.held_out``).
         evaluation: the run's `evaluation` node: {"mesh": extract_surface kwargs (its "padding" sizes the meshed
             cube), "ucd_samples", "seed", "max_shapes"}.
         loop_lengths: (S, B) vertex counts of the training loops (stored; sizes the buffers on reload).
@@ -73,6 +81,8 @@ class AutodecoderModule(DeepCurrentsModule):
         latent_std: float = 0.1,
         surface_weight: float = 1.0,
         surface_margin: float = 0.01,
+        interpolation_weight: float = 0.0,
+        latent_fit: dict | None = None,
         evaluation: dict | None = None,
         loop_lengths: Sequence[Sequence[int]] | None = None,
         train_loops: Sequence[Sequence[np.ndarray]] | None = None,
@@ -88,6 +98,8 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.num_shapes={num_shapes} does not match the {len(shape_names)} shape names.")
         if not surface_weight >= 0:
             raise ConfigError(f"model.surface_weight={surface_weight} must be non-negative.")
+        if not interpolation_weight >= 0:
+            raise ConfigError(f"model.interpolation_weight={interpolation_weight} must be non-negative.")
         self.save_hyperparameters(ignore=["train_loops", "train_bounds"])
         self.evaluation = dict(evaluation or {})
         self.family = FamilyCurrent(num_shapes, num_loops, latent_dim, boundary_dim, latent_std=latent_std,
@@ -137,13 +149,15 @@ class AutodecoderModule(DeepCurrentsModule):
             )
         return ConditionedCurrent(self.family, z, [torch.as_tensor(lp, dtype=torch.float32) for lp in loops]).eval()
 
-    def meshing_bounds(self, shapes: Sequence[int], loops: Sequence[np.ndarray] = ()) -> np.ndarray:
-        """The region to mesh: the cube around the union of the given training shapes' boxes and the loops'
-        box, of side (1 + 2·``evaluation.mesh.padding``) × its largest extent, clipped to the domain. → (2, 3).
+    def meshing_bounds(self, shapes: Sequence[int], loops: Sequence[np.ndarray] = (),
+                       boxes: Sequence[np.ndarray] = ()) -> np.ndarray:
+        """The region to mesh: the cube around the union of the given training shapes' boxes, the loops'
+        box and any further ``boxes`` (2, 3), of side
+        (1 + 2·``evaluation.mesh.padding``) × its largest extent, clipped to the domain. → (2, 3).
 
         A cube rather than the tight box: a learned (or interpolated) surface may leave the target's box,
         and a thin box would hide spurious sheets from the UCD."""
-        boxes = [self.train_bounds[i].detach().cpu().double().numpy() for i in shapes]
+        boxes = [self.train_bounds[i].detach().cpu().double().numpy() for i in shapes] + list(boxes)
         boxes += [np.stack([lp.min(0), lp.max(0)]) for lp in loops]
         lo = np.min([b[0] for b in boxes], 0)
         hi = np.max([b[1] for b in boxes], 0)
@@ -158,11 +172,60 @@ class AutodecoderModule(DeepCurrentsModule):
         mesh_cfg = {k: v for k, v in dict(self.evaluation.get("mesh", {})).items() if k not in ("bounds", "padding")}
         return extract_surface(current, bounds=bounds, **mesh_method(mesh_cfg, self.mesh_method))
 
+    # ------------------------------------------------------------------------------ unseen shapes
+    def fit_latent(self, vertices: np.ndarray, faces: np.ndarray, loops: Sequence[np.ndarray], steps: int = 300,
+                   lr: float = 1e-2, num_samples: int = 2000, num_surface_samples: int = 2000,
+                   boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0
+                   ) -> tuple[torch.Tensor, list[float]]:
+        """The autodecoder's test-time step: the latent code of a shape not trained on, by Adam on z alone
+        with the training losses (current loss under B_x and surface loss on the unaugmented mesh, fresh
+        samples every step); the decoder, the encoders and the training codes stay frozen. z starts at
+        the mean training code.
+
+        vertices (V, 3), faces (F, 3): the shape; loops: its B loops (M_b, 3) in the family's loop order.
+        → (z (latent_dim,), the loss at each step (S,))."""
+        steps = positive_int("model.latent_fit.steps", steps)
+        if not lr > 0:
+            raise ConfigError(f"model.latent_fit.lr={lr} must be positive.")
+        loops = [np.asarray(lp, np.float64) for lp in loops]
+        target = MeshTarget(vertices, faces, loops)
+        gen = torch.Generator().manual_seed(int(seed))
+        weight = self.family.latents.weight
+        z = weight.detach().mean(0, keepdim=True).clone().requires_grad_(True)  # (1, latent_dim)
+        opt = torch.optim.Adam([z], lr=float(lr))
+        frozen = [(q, q.requires_grad) for q in self.family.parameters()]
+        was_training, history = self.training, []
+        try:
+            for q, _ in frozen:
+                q.requires_grad_(False)
+            self.eval()  # the plain losses: no interpolation term
+            with torch.enable_grad():
+                for _ in range(steps):
+                    item = target_sample(target, num_samples, num_surface_samples, gen, boundary_sigma=boundary_sigma,
+                                         boundary_weighting=boundary_weighting, surface_loss=True)
+                    item["index"], item["loops"] = 0, loops
+                    batch = {k: v.to(weight.device) for k, v in collate_shapes([item]).items()}
+                    loss = self.compute_losses(batch, z)["loss"]
+                    opt.zero_grad(set_to_none=True)
+                    loss.backward()
+                    opt.step()
+                    history.append(float(loss.detach()))
+        finally:
+            for q, flag in frozen:
+                q.requires_grad_(flag)
+            self.train(was_training)
+        return z.detach()[0], history
+
     # --------------------------------------------------------------------------------------- training
-    def compute_losses(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Current loss (metric B_x) and surface loss over a batch of S shapes × N points."""
+    def compute_losses(self, batch: dict[str, torch.Tensor], z: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Current loss (metric B_x) and surface loss over a batch of S shapes × N points, and the
+        interpolants' mass loss when ``interpolation_weight`` > 0.
+
+        z: (S, latent_dim) latent codes of the batch's shapes (default: the training codes of
+        ``batch["index"]``; the latent fit of a held-out shape passes its own)."""
         loops, mask = batch["loops"], batch["loop_mask"]
-        code = self.family.code(self.family.latents(batch["index"]), loops, mask)
+        z = self.family.latents(batch["index"]) if z is None else z
+        code = self.family.code(z, loops, mask)
         _, omega = self.family(batch["x"], code, loops, mask, create_graph=True)
         losses = {"current_loss": current_loss(omega.flatten(0, 1), batch["metric"].flatten(0, 1))}
         loss = losses["current_loss"]
@@ -172,8 +235,33 @@ class AutodecoderModule(DeepCurrentsModule):
             f_minus, f_plus = self.family.f(torch.cat([y - offset, y + offset], 1), code).chunk(2, dim=1)
             losses["surface_loss"] = surface_loss(f_minus.flatten(), f_plus.flatten(), self.hparams.surface_margin)
             loss = loss + self.hparams.surface_weight * losses["surface_loss"]
+        if self.hparams.interpolation_weight > 0 and self.training:
+            interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1])
+            if interpolation is not None:
+                losses["interpolation_loss"] = interpolation
+                loss = loss + self.hparams.interpolation_weight * interpolation
         losses["loss"] = loss
         return losses
+
+    def interpolation_loss(self, z: torch.Tensor, loops: torch.Tensor, mask: torch.Tensor,
+                           num_points: int) -> torch.Tensor | None:
+        """E_x |ω_t(x)| (B = I, x ~ U([-1, 1]^3)) of interpolants between each shape of the batch and the
+        next one (a cyclic shift): z_t = (1 − t) z_i + t z_j, Γ_t = (1 − t) Γ_i + t Γ_j vertex by vertex, one
+        t ~ U[0, 1] per pair. Pairs whose loops differ in vertex counts are skipped (None if none is left).
+
+        z (S, latent_dim), loops (S, B, L, 3), mask (S, B, L) → scalar."""
+        other = torch.roll(torch.arange(len(z), device=z.device), -1)
+        same = (mask == mask[other]).flatten(1).all(1) & (other != torch.arange(len(z), device=z.device))
+        if not bool(same.any()):
+            return None
+        i, j = same.nonzero().squeeze(1), other[same]
+        t = torch.rand(len(i), 1, device=z.device, dtype=z.dtype)
+        z_t = (1 - t) * z[i] + t * z[j]
+        loops_t = (1 - t[:, :, None, None]) * loops[i] + t[:, :, None, None] * loops[j]
+        code = self.family.code(z_t, loops_t, mask[i])
+        x = torch.rand(len(i), num_points, 3, device=z.device, dtype=loops.dtype) * 2 - 1
+        _, omega = self.family(x, code, loops_t, mask[i], create_graph=True)
+        return current_loss(omega.flatten(0, 1))
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         losses = self.compute_losses(batch)
@@ -208,20 +296,46 @@ class AutodecoderModule(DeepCurrentsModule):
             self.train_bounds = family["bounds"].cpu().float()
 
     # ------------------------------------------------------------------------------------- evaluation
+    def evaluate_member(self, z: torch.Tensor, loops: list[np.ndarray], bounds: np.ndarray, target, path: Path,
+                        samples: int, seed: int) -> tuple[dict[str, Any], Any]:
+        """Meshes the member (z, Γ) in ``bounds``, writes it to ``path`` and measures it against ``target``
+        (trimesh): UCD (target → mesh, paper Tab. 1), ucd_reverse (mesh → target, which sees spurious
+        sheets), boundary adherence, areas. → (row, mesh)."""
+        result = self.mesh_member(self.member(z, loops), bounds)
+        mesh = result.mesh
+        mesh.export(path)
+        empty = len(mesh.faces) == 0
+        summary = mesh_summary(result, loops)
+        row = {
+            "ucd": None if empty else unidirectional_chamfer(target, mesh, samples, seed),
+            "ucd_reverse": None if empty else unidirectional_chamfer(mesh, target, samples, seed),
+            "boundary_error": summary["boundary_error"], "mesh_faces": summary["mesh_faces"],
+            "mesh_area": summary["mesh_area"], "target_area": float(target.area),
+            "boundary_loops_closed": summary["boundary_loops_closed"],
+        }
+        return row, mesh
+
     @torch.no_grad()
-    def final_evaluation(self, out_dir: str | Path, meshes: Sequence | None = None) -> dict[str, Any]:
+    def final_evaluation(self, out_dir: str | Path, meshes: Sequence | None = None,
+                         held_out: Sequence | None = None) -> dict[str, Any]:
         """Meshes every training shape under its own latent code and unaugmented boundary, and measures
         UCD against its mesh (paper Tab. 1's metric; ucd_reverse: mesh → target, which sees spurious
-        sheets that UCD does not) and boundary adherence.
+        sheets that UCD does not) and boundary adherence. Shapes held out of training (``data.held_out``)
+        get their latent code by ``fit_latent`` (``model.latent_fit``) and are measured the same way:
+        ``ucd_held_out_mean`` beside ``ucd`` shows generalisation, not memory.
 
-        Writes ``meshes/NNN_<name>.ply``, ``per_shape.csv``, ``meshes.png`` (up to 12 shapes) and
-        ``metrics.json`` (ucd = mean over shapes, ucd_worst, boundary_error mean / worst, ...).
-        ``meshes``: the family's ``FamilyMesh`` list (default: the trainer's DataModule's).
+        Writes ``meshes/NNN_<name>.ply`` (held out: ``meshes/held_out_NNN_<name>.ply``), ``per_shape.csv``
+        (``split`` = train or held_out), ``meshes.png`` (up to 12 shapes) and ``metrics.json`` (ucd = mean
+        over training shapes, ucd_worst, boundary_error mean / worst, ucd_held_out_mean, ...).
+        ``meshes`` / ``held_out``: the family's ``FamilyMesh`` lists (default: the trainer's DataModule's).
         """
         out_dir = Path(out_dir)
         (out_dir / "meshes").mkdir(parents=True, exist_ok=True)
+        datamodule = self.trainer.datamodule if self._trainer is not None else None
         if meshes is None:
-            meshes = self.trainer.datamodule.meshes
+            meshes = datamodule.meshes
+        if held_out is None:
+            held_out = getattr(datamodule, "held_out_meshes", [])
         names = [m.name for m in meshes]
         if names != list(self.hparams.shape_names):
             raise CheckpointMismatchError("The evaluation meshes are not the family this model was trained on.")
@@ -235,47 +349,72 @@ class AutodecoderModule(DeepCurrentsModule):
         rows, learned = [], []
         for i in range(count):
             loops = self.shape_loops(i)
-            result = self.mesh_member(self.member(self.latent(i), loops), self.meshing_bounds([i]))
-            mesh = result.mesh
             stem = Path(names[i]).stem
-            mesh.export(out_dir / "meshes" / f"{i:03d}_{stem}.ply")
-            empty = len(mesh.faces) == 0
-            target = meshes[i].trimesh()
-            summary = mesh_summary(result, loops)
-            rows.append({
-                "index": i, "name": names[i],
-                "ucd": None if empty else unidirectional_chamfer(target, mesh, samples, seed),
-                "ucd_reverse": None if empty else unidirectional_chamfer(mesh, target, samples, seed),
-                "boundary_error": summary["boundary_error"], "mesh_faces": summary["mesh_faces"],
-                "mesh_area": summary["mesh_area"], "target_area": float(target.area),
-                "boundary_loops_closed": summary["boundary_loops_closed"],
-            })
+            row, mesh = self.evaluate_member(self.latent(i), loops, self.meshing_bounds([i]), meshes[i].trimesh(),
+                                             out_dir / "meshes" / f"{i:03d}_{stem}.ply", samples, seed)
+            rows.append({"index": i, "name": names[i], "split": "train", **row, "fit_loss_start": None,
+                         "fit_loss_end": None})
             learned.append((mesh, loops, f"{i}: {stem}"))
-            log.info("shape %d (%s): ucd %s", i, names[i], rows[-1]["ucd"])
+            log.info("shape %d (%s): ucd %s", i, names[i], row["ucd"])
+        fit = dict(self.hparams.get("latent_fit") or {})
+        sampling = {"boundary_sigma": float(getattr(datamodule, "boundary_sigma", 0.1)),
+                    "boundary_weighting": bool(getattr(datamodule, "boundary_weighting", True))}
+        fit_seconds = 0.0
+        for k, shape in enumerate(held_out):
+            loops = shape.loop_points()
+            start = time.perf_counter()
+            z, history = self.fit_latent(shape.vertices, shape.faces, loops, steps=int(fit.get("steps", 300)),
+                                         lr=float(fit.get("lr", 1e-2)),
+                                         num_samples=int(fit.get("num_samples", 2000)),
+                                         num_surface_samples=int(fit.get("num_surface_samples", 2000)),
+                                         seed=seed + k, **sampling)
+            fit_seconds += time.perf_counter() - start
+            stem = Path(shape.name).stem
+            box = np.stack([shape.vertices.min(0), shape.vertices.max(0)])
+            row, mesh = self.evaluate_member(z, loops, self.meshing_bounds([], loops, [box]), shape.trimesh(),
+                                             out_dir / "meshes" / f"held_out_{k:03d}_{stem}.ply", samples, seed)
+            tail = max(1, len(history) // 10)  # the loss is noisy (fresh samples): mean of the first / last tenth
+            rows.append({"index": k, "name": shape.name, "split": "held_out", **row,
+                         "fit_loss_start": float(np.mean(history[:tail])),
+                         "fit_loss_end": float(np.mean(history[-tail:]))})
+            learned.append((mesh, loops, f"held out: {stem}"))
+            log.info("held-out shape %s: ucd %s (latent fit %d steps)", shape.name, row["ucd"], len(history))
         with open(out_dir / "per_shape.csv", "w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
-        shown = learned[:12]
+        keep_held = min(len(learned) - count, 6)  # up to 12 pictures, up to 6 of them held-out shapes
+        shown = learned[:count][:12 - keep_held] + learned[count:count + keep_held]
         plot_mesh_grid([m for m, _, _ in shown], [lp for _, lp, _ in shown], out_dir / "meshes.png",
                        titles=[t for _, _, t in shown])
-        ucd = [r["ucd"] for r in rows if r["ucd"] is not None]
-        be = [r["boundary_error"] for r in rows if r["boundary_error"] is not None]
+        train_rows, held_rows = rows[:count], rows[count:]
+        ucd = [r["ucd"] for r in train_rows if r["ucd"] is not None]
+        be = [r["boundary_error"] for r in train_rows if r["boundary_error"] is not None]
         metrics: dict[str, Any] = {
             "loss": float(self.trainer.callback_metrics.get("train/loss", float("nan")))
             if self._trainer is not None else None,
             "ucd": float(np.mean(ucd)) if ucd else None,
             "ucd_worst": float(np.max(ucd)) if ucd else None,
-            "ucd_worst_index": int(rows[int(np.argmax([r["ucd"] if r["ucd"] is not None else -1 for r in rows]))]
-                                   ["index"]) if ucd else None,
-            "ucd_reverse": float(np.mean([r["ucd_reverse"] for r in rows if r["ucd_reverse"] is not None]))
+            "ucd_worst_index": int(train_rows[int(np.argmax([r["ucd"] if r["ucd"] is not None else -1
+                                                             for r in train_rows]))]["index"]) if ucd else None,
+            "ucd_reverse": float(np.mean([r["ucd_reverse"] for r in train_rows if r["ucd_reverse"] is not None]))
             if ucd else None,
             "boundary_error": float(np.mean(be)) if be else None,
             "boundary_error_worst": float(np.max(be)) if be else None,
-            "empty_meshes": sum(r["ucd"] is None for r in rows),
+            "empty_meshes": sum(r["ucd"] is None for r in train_rows),
             "shapes_evaluated": count,
             "num_shapes": self.num_shapes,
-            **self.run_metrics(),
         }
+        if held_rows:
+            held_ucd = [r["ucd"] for r in held_rows if r["ucd"] is not None]
+            held_be = [r["boundary_error"] for r in held_rows if r["boundary_error"] is not None]
+            metrics.update({
+                "ucd_held_out_mean": float(np.mean(held_ucd)) if held_ucd else None,
+                "ucd_held_out_worst": float(np.max(held_ucd)) if held_ucd else None,
+                "boundary_error_held_out": float(np.mean(held_be)) if held_be else None,
+                "empty_meshes_held_out": sum(r["ucd"] is None for r in held_rows),
+                "held_out_shapes": len(held_rows),
+                "latent_fit_seconds": fit_seconds,
+            })
+        metrics.update(self.run_metrics())
         return self.write_metrics(out_dir, metrics)
-

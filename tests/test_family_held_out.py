@@ -1,0 +1,155 @@
+"""Shapes held out of a family's training (data.held_out): the split, the autodecoder's test-time latent fit
+(only z moves, the loss drops), the final evaluation's ucd_held_out_mean; and the optional interpolation
+regulariser (model.interpolation_weight): its loss is the Euclidean mass of the blended shape."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from test_family import CENTRES, SHAPES, compose_cfg, disc_mesh, tiny_overrides
+
+from deepcurrents.data.family import FamilyDataModule, collate_shapes, split_held_out
+from deepcurrents.data.targets import MeshTarget, target_sample
+from deepcurrents.errors import ConfigError
+from deepcurrents.eval.metrics import point_mesh_distance
+from deepcurrents.losses import current_loss
+from deepcurrents.models.autodecoder import AutodecoderModule
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def discs(tmp_path_factory) -> Path:
+    """Four discs: the three of test_family and a fourth cap, lower, to hold out."""
+    d = tmp_path_factory.mktemp("discs4")
+    for name, h in SHAPES.items():
+        disc_mesh(h, radius=0.25, center=CENTRES[name]).export(d / f"{name}.ply")
+    disc_mesh(lambda x, y: 1.2 * (0.35**2 - x**2 - y**2), radius=0.25, center=(0.0, 0.0, -0.5)).export(
+        d / "003_low_cap.ply")
+    return d
+
+
+def test_held_out_split_takes_the_last_files_and_max_meshes_of_the_others():
+    files = [Path(f"{i:03d}.ply") for i in range(8)]
+    train, held = split_held_out(files, 4, 2)
+    assert [p.stem for p in train] == ["000", "001", "002", "003"] and [p.stem for p in held] == ["006", "007"]
+    assert split_held_out(files, None, 0) == (files, [])
+    with pytest.raises(ConfigError, match=r"data.held_out=8 leaves no mesh to train on: the family has 8"):
+        split_held_out(files, None, 8)
+    with pytest.raises(ConfigError, match=r"data.held_out=-1 must be zero or a positive integer"):
+        split_held_out(files, None, -1)
+
+
+def test_datamodule_keeps_held_out_meshes_out_of_the_model(discs):
+    dm = FamilyDataModule(str(discs), held_out=1, meshes_per_batch=2, num_samples=16, num_surface_samples=8)
+    assert [m.name for m in dm.meshes] == ["000_cap.ply", "001_saddle.ply", "002_wave.ply"]
+    assert [m.name for m in dm.held_out_meshes] == ["003_low_cap.ply"]
+    kwargs = dm.model_kwargs()
+    assert kwargs["num_shapes"] == 3 and "003_low_cap.ply" not in kwargs["shape_names"]
+    # the held-out loop is matched to the family's reference: same start vertex direction, same orientation
+    ref, held = dm.meshes[0].loop_points()[0], dm.held_out_meshes[0].loop_points()[0]
+    np.testing.assert_allclose((held - held.mean(0))[0], (ref - ref.mean(0))[0], atol=1e-9)
+
+
+def small_module(num_shapes: int = 3) -> AutodecoderModule:
+    """A small untrained autodecoder whose output layer is not zero (so f depends on z from the start)."""
+    torch.manual_seed(0)
+    loops = [[disc_mesh(h, radius=0.25).vertices[-24:]] for h in list(SHAPES.values())[:num_shapes]]
+    return AutodecoderModule(
+        num_shapes=num_shapes, num_loops=1, shape_names=[f"s{i}" for i in range(num_shapes)],
+        net={"width": 32, "depth": 2, "activation": "softplus", "alpha_scale": 1e-3, "zero_init_output": False},
+        rff={"num_frequencies": 16, "sigma": 2.0, "enabled": True, "seed": 0},
+        optim={"lr": 1e-3, "step_size": 100, "gamma": 0.5}, latent_dim=8, boundary_dim=8, surface_weight=5.0,
+        train_loops=loops, train_bounds=[np.array([[-0.3, -0.3, -0.2], [0.3, 0.3, 0.2]])] * num_shapes)
+
+
+def fixed_batch(mesh, seed: int = 7) -> dict[str, torch.Tensor]:
+    loops = [mesh.vertices[-24:]]
+    target = MeshTarget(mesh.vertices, mesh.faces, loops)
+    item = target_sample(target, 512, 256, torch.Generator().manual_seed(seed))
+    item["index"], item["loops"] = 0, loops
+    return collate_shapes([item])
+
+
+def test_latent_fit_moves_only_z_and_lowers_the_loss():
+    module = small_module()
+    before = {k: v.clone() for k, v in module.state_dict().items()}
+    flags = [p.requires_grad for p in module.parameters()]
+    mesh = disc_mesh(lambda x, y: 1.0 * (x**2 - 0.5 * y**2), radius=0.25)  # not a training shape
+    batch = fixed_batch(mesh)
+    z0 = module.family.latents.weight.detach().mean(0, keepdim=True)
+    loss0 = float(module.compute_losses(batch, z0)["loss"].detach())
+    z, history = module.fit_latent(mesh.vertices, mesh.faces, [mesh.vertices[-24:]], steps=60, lr=0.1,
+                                   num_samples=512, num_surface_samples=256, seed=1)
+    assert z.shape == (8,) and len(history) == 60
+    loss1 = float(module.compute_losses(batch, z[None])["loss"].detach())  # on a batch the fit never saw
+    assert loss1 < 0.85 * loss0, (loss0, loss1)
+    assert np.mean(history[-6:]) < np.mean(history[:6])
+    for key, value in module.state_dict().items():  # decoder, encoders and training codes untouched
+        assert torch.equal(value, before[key]), key
+    assert [p.requires_grad for p in module.parameters()] == flags
+    with pytest.raises(ConfigError, match="model.latent_fit.steps"):
+        module.fit_latent(mesh.vertices, mesh.faces, [mesh.vertices[-24:]], steps=0)
+
+
+def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
+    """Two copies of one shape: every interpolant is that shape, so the term is E_x|ω(x)| (B = I) of its
+    current at the same uniform points, computed here through the single-member view."""
+    module = small_module()
+    module.train()
+    loops = torch.as_tensor(disc_mesh(SHAPES["000_cap"], radius=0.25).vertices[-24:], dtype=torch.float32)
+    padded = loops[None, None].repeat(2, 1, 1, 1)
+    mask = torch.ones(2, 1, 24, dtype=torch.bool)
+    z = module.family.latents.weight[:1].detach().repeat(2, 1)
+    torch.manual_seed(3)
+    got = module.interpolation_loss(z, padded, mask, 300)
+    torch.manual_seed(3)
+    torch.rand(2, 1)  # the two t's
+    x = torch.rand(2, 300, 3) * 2 - 1
+    member = module.member(z[0], [loops.numpy()])
+    want = current_loss(torch.cat([member(xs, create_graph=False)[1] for xs in x]))
+    assert float(got.detach()) == pytest.approx(float(want), rel=1e-5)
+    # gradients reach the decoder; shapes with other loop sizes are not blended
+    got.backward()
+    assert module.family.mlp.net[0].weight.grad.abs().sum() > 0
+    short = mask.clone()
+    short[1, 0, -1] = False
+    assert module.interpolation_loss(z, padded, short, 10) is None
+    with pytest.raises(ConfigError, match="interpolation_weight"):
+        AutodecoderModule(**{**module.hparams, "interpolation_weight": -1.0})
+
+
+def test_final_evaluation_reports_held_out_shapes(discs, tmp_path):
+    from deepcurrents.experiments.runner import train
+
+    steps = 60
+    cfg = compose_cfg(tiny_overrides(discs, tmp_path, steps) + [
+        "data.held_out=1", "model.latent_fit.steps=40", "model.latent_fit.num_samples=256",
+        "model.latent_fit.num_surface_samples=192", "model.interpolation_weight=1.0"])
+    metrics = train(cfg, out_dir=tmp_path)
+    saved = json.loads((tmp_path / "metrics.json").read_text())
+    with open(tmp_path / "per_shape.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["split"] for r in rows] == ["train"] * 3 + ["held_out"]
+    held = rows[-1]
+    assert held["name"] == "003_low_cap.ply" and metrics["held_out_shapes"] == 1
+    assert saved["ucd_held_out_mean"] == pytest.approx(float(held["ucd"]))
+    assert saved["ucd"] == pytest.approx(np.mean([float(r["ucd"]) for r in rows[:3]]))
+    # the reported UCD is the distance from the held-out target to the mesh written for it
+    import trimesh
+
+    mesh = trimesh.load(tmp_path / "meshes" / "held_out_000_003_low_cap.ply", process=False)
+    target = trimesh.load(discs / "003_low_cap.ply", process=False)
+    assert point_mesh_distance(target.sample(20000, seed=1), mesh).mean() == pytest.approx(float(held["ucd"]),
+                                                                                          rel=0.1)
