@@ -27,6 +27,7 @@ from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import biot_savart
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
+from deepcurrents.models.current_module import input_frame, input_mesh, metrics_in_input_units
 from deepcurrents.nn import NeuralCurrent
 
 log = logging.getLogger(__name__)
@@ -180,8 +181,12 @@ class GridModule(DeepCurrentsModule):
         result = extract_surface(self.current, **mesh_method(self.evaluation.get("mesh", {}), self.mesh_method))
         loops = [lp.cpu().double().numpy() for lp in self.current.loops]
         name = self.hparams.boundary.get("name", "")
+        frame = input_frame(self.hparams.boundary)  # a normalised curve: outputs in the input's units
         metrics.update(self.write_mesh(out_dir, result, loops,
-                                       f"{name} grid {self.resolution}³: area {result.mesh.area:.4f}"))
+                                       f"{name} grid {self.resolution}³: area {result.mesh.area:.4f}",
+                                       export=input_mesh(result.mesh, frame) if frame is not None else None))
+        if frame is not None:
+            metrics = metrics_in_input_units(metrics, *frame)
         np.savez(out_dir / "field.npz", phi=phi.cpu().numpy(), omega_norm=omega.norm(dim=0).float().cpu().numpy(),
                  resolution=self.resolution, alpha_scale=self.current.alpha_scale,
                  cell_centers_axis=(-1.0 + grid_spacing(self.resolution) * (np.arange(self.resolution) + 0.5)))

@@ -11,7 +11,7 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from deepcurrents.data.sampling import AmbientSampler, cell_scores, pool_batch, sample_pool, sampling_options
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.geometry import Boundary, PointBoundary, biot_savart, biot_savart_2d, load_boundary, validate_points
 
 
@@ -70,7 +70,10 @@ class AmbientSamples(IterableDataset):
 class MinimalSurfaceDataModule(L.LightningDataModule):
     """Boundary Γ (validated at construction, so bad input stops before training) and ambient samples.
 
-    3D: ``curve`` is a named curve (trefoil, hopf, borromean, circle) or a curve file.
+    3D: ``curve`` is a named curve (trefoil, hopf, borromean, circle, enneper) or a curve file, times
+    ``curve_scale``. ``normalize`` (auto/true/false) centres and scales it into the box when it reaches
+    beyond the safe extent (see ``geometry.curves.SAFE_EXTENT``; the Boundary keeps the map back to the
+    input's coordinates); loops with more than ``max_vertices_per_loop`` vertices are resampled by arc length.
     2D: ``points`` [[x, y], ...] with ``signs`` [±1, ...].
     """
 
@@ -80,6 +83,8 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
         curve: str = "trefoil",
         curve_vertices: int = 100,
         curve_scale: float = 1.0,
+        normalize: bool | str = "auto",
+        max_vertices_per_loop: int | None = 512,
         points: Sequence[Sequence[float]] | None = None,
         signs: Sequence[float] | None = None,
         num_samples: int = 4096,
@@ -95,13 +100,22 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
             raise ConfigError(f"data.curve_vertices={curve_vertices} must be at least 3.")
         if num_workers < 0:
             raise ConfigError(f"data.num_workers={num_workers} must be zero or positive.")
+        if isinstance(curve_scale, bool) or not isinstance(curve_scale, (int, float)) or not curve_scale > 0 \
+                or not np.isfinite(curve_scale):
+            raise ConfigError(f"data.curve_scale={curve_scale!r} must be a positive number (it multiplies the "
+                              "curve's coordinates).")
+        if normalize not in (True, False, "auto"):
+            raise ConfigError(f"data.normalize={normalize!r} must be true, false or auto.")
+        if max_vertices_per_loop is not None:  # null keeps every vertex
+            positive_int("data.max_vertices_per_loop", max_vertices_per_loop, minimum=3)
         self.dim, self.num_samples, self.num_workers, self.seed = dim, num_samples, num_workers, seed
         self.boundary: Boundary | PointBoundary
         if dim == 3:
             if curve is None:  # experiment=minimal_curve without its file
                 raise ConfigError("data.curve must be given: a named curve (trefoil, hopf, borromean, circle, "
                                   "enneper) or a curve file, e.g. data.curve=path/to/rim.obj.")
-            self.boundary = load_boundary(curve, n=curve_vertices, scale=curve_scale)
+            self.boundary = load_boundary(curve, n=curve_vertices, scale=curve_scale, normalize=normalize,
+                                          max_vertices=max_vertices_per_loop)
         elif dim == 2:
             if points is None or signs is None:
                 raise ConfigError("data.points and data.signs are required for a 2D run (data.dim=2).")

@@ -22,6 +22,7 @@ from deepcurrents.data.human_parts import dataset_path
 from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_point_sample, mesh_boundary_loops
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry import Boundary, load_boundary, validate_loops, validate_points
+from deepcurrents.geometry.curves import box_normalisation
 from deepcurrents.geometry.meshes import read_mesh
 from deepcurrents.geometry.polyline import project_to_segments
 
@@ -113,16 +114,9 @@ def normalisation(points: np.ndarray, mode: bool | str, half_extent: float = 0.5
 
     mode True: centre the bounding box and fit it in [-half_extent, half_extent]^3 (the paper's box);
     "auto": only when the input does not already fit in [-0.9, 0.9]^3; False: identity.
+    (geometry.curves.box_normalisation, shared with minimal-surface curves.)
     """
-    lo, hi = points.min(0), points.max(0)
-    if mode == "auto":
-        mode = bool(np.abs(points).max() > 0.9)
-        if mode:
-            log.info("The target does not fit in [-0.9, 0.9]^3; it is centred and scaled into [-0.5, 0.5]^3 "
-                     "(outputs are written back in its own coordinates).")
-    if not mode:
-        return 1.0, np.zeros(3)
-    return float((hi - lo).max()) / (2 * half_extent), 0.5 * (lo + hi)
+    return box_normalisation(points, mode, half_extent, safe_extent=0.9, what="The target")
 
 
 # ------------------------------------------------------------------------------------------ samples

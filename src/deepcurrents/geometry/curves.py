@@ -7,13 +7,14 @@ orientation; the last vertex connects to the first. A 2D boundary is a set of si
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from deepcurrents.errors import UserInputError
+from deepcurrents.geometry.polyline import resample_loop
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,22 @@ def borromean_rings(n: int = 100) -> list[np.ndarray]:
     return [np.stack([a, b, z], 1), np.stack([z, a, b], 1), np.stack([b, z, a], 1)]
 
 
+def enneper(n: int = 100, radius: float = 0.8) -> list[np.ndarray]:
+    """The border of Enneper's surface over the parameter disc of ``radius`` (< 1):
+    (u − u³/3 + uv², −v + v³/3 − u²v, u² − v²) at (u, v) = radius·(cos t, sin t). For radius < 1 the
+    surface is the curve's unique minimal surface, of area :func:`enneper_area` (a known exact area that is
+    not planar; radius 0.8 reaches 0.97 from the origin, 0.70 in each coordinate)."""
+    t = _param(n)
+    u, v = radius * np.cos(t), radius * np.sin(t)
+    return [np.stack([u - u**3 / 3 + u * v**2, -v + v**3 / 3 - u**2 * v, u**2 - v**2], 1)]
+
+
+def enneper_area(radius: float = 0.8) -> float:
+    """Exact area of Enneper's surface over the parameter disc of ``radius``: π(r² + r⁴ + r⁶/3)
+    (its metric is (1 + u² + v²)² (du² + dv²))."""
+    return float(np.pi * (radius**2 + radius**4 + radius**6 / 3))
+
+
 NAMED_CURVES = {
     "trefoil": trefoil,
     "hopf": hopf_link,
@@ -71,6 +88,7 @@ NAMED_CURVES = {
     "borromean": borromean_rings,
     "borromean_rings": borromean_rings,
     "circle": lambda n=100: [circle(0.6, n=n)],
+    "enneper": enneper,
 }
 
 
@@ -172,10 +190,24 @@ def _join_segments(pieces: list[np.ndarray]) -> list[np.ndarray]:
 
 @dataclass
 class Boundary:
-    """A validated 3D boundary: closed loops (float64 numpy, each (M_i, 3)) and where they came from."""
+    """A validated 3D boundary: closed loops (float64 numpy, each (M_i, 3)) and where they came from.
+
+    ``loops`` are in model coordinates (inside the box U); ``scale`` and ``offset`` map them back to the
+    coordinates the curve was given in: input = model · scale + offset (identity unless it was normalised).
+    """
 
     loops: list[np.ndarray]
     name: str
+    scale: float = 1.0
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def normalized(self) -> bool:
+        return self.scale != 1.0 or bool(np.any(np.asarray(self.offset) != 0))
+
+    def to_input(self, points: np.ndarray) -> np.ndarray:
+        """Model coordinates → the input's. (N, 3) → (N, 3)."""
+        return np.asarray(points, dtype=np.float64) * self.scale + np.asarray(self.offset, dtype=np.float64)
 
     def tensors(self, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> list[torch.Tensor]:
         return [torch.as_tensor(loop, dtype=dtype, device=device) for loop in self.loops]
@@ -220,7 +252,8 @@ def validate_loops(loops: list[np.ndarray], source: str, domain: float = 1.0) ->
         if np.abs(loop).max() >= domain:
             raise BoundaryError(
                 f"Boundary {name} has vertices outside the domain [-{domain:g}, {domain:g}]^3 "
-                f"(max |coordinate| = {np.abs(loop).max():.3g}); rescale the curve."
+                f"(max |coordinate| = {np.abs(loop).max():.3g}); rescale it, or let data.normalize=auto or true "
+                "centre and scale it."
             )
         clean.append(loop)
     if not clean:
@@ -228,10 +261,50 @@ def validate_loops(loops: list[np.ndarray], source: str, domain: float = 1.0) ->
     return clean
 
 
-def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1.0) -> Boundary:
+# Curves are kept this far inside the box U = [-1, 1]^3: f has no condition on ∂U, so a current may end on the
+# wall instead of spanning Γ. Measured (benchmarks/curve_margin.py, converged grid currents of Enneper's curve at
+# equal resolution per curve size): area/exact 0.32 at max|x| = 0.9, 0.56 at 0.8, 0.87 at 0.7, 1.3% low at
+# 0.65, unchanged from 0.6 down. "auto" normalises a curve reaching beyond SAFE_EXTENT into the centred
+# box of half-size NORMALIZED_EXTENT (a further 0.1 of margin for curves that bend towards the wall more).
+SAFE_EXTENT = 0.6
+NORMALIZED_EXTENT = 0.5
+
+
+def box_normalisation(points: np.ndarray, mode: bool | str, half_extent: float, safe_extent: float,
+                      what: str = "The input") -> tuple[float, np.ndarray]:
+    """(scale, offset) with model coordinates = (input − offset) / scale. points: (N, 3).
+
+    mode True: centre the bounding box and fit it in [-half_extent, half_extent]^3; "auto": the same, only
+    when some |coordinate| exceeds ``safe_extent`` (logged, naming ``what``); False: identity (1, 0).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    lo, hi = points.min(0), points.max(0)
+    reach = float(np.abs(points).max())
+    if mode == "auto":
+        mode = reach > safe_extent
+        if mode:
+            log.info("%s reaches %.4g from the centre of the box (safe: %g); it is centred and scaled into "
+                     "[-%g, %g]^3 (data.normalize=auto; outputs are written back in its own coordinates).",
+                     what, reach, safe_extent, half_extent, half_extent)
+    if not mode:
+        return 1.0, np.zeros(3)
+    size = float((hi - lo).max())
+    if size <= 0:
+        return 1.0, np.zeros(3)  # a single point: the validation that follows names the problem
+    return size / (2 * half_extent), 0.5 * (lo + hi)
+
+
+def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1.0,
+                  normalize: bool | str = False, max_vertices: int | None = None) -> Boundary:
     """A boundary from a name in NAMED_CURVES (sampled with ``n`` vertices per loop) or a curve file path.
 
-    ``scale`` multiplies the coordinates (handy to fit a file into the domain)."""
+    ``scale`` multiplies the coordinates; the result is "the input" that outputs are reported in.
+    ``normalize`` (True, "auto", False): centre and scale the loops into the box, see
+    :func:`box_normalisation` (auto: only beyond SAFE_EXTENT); the Boundary keeps the map back.
+    ``max_vertices``: loops with more vertices are resampled by arc length to that many, corners kept
+    (:func:`deepcurrents.geometry.polyline.resample_loop`), with a warning; None keeps every vertex."""
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
+        raise BoundaryError(f"The curve scale {scale!r} must be a positive number.")
     key = str(spec).strip()
     if key.lower() in NAMED_CURVES:
         loops = NAMED_CURVES[key.lower()](n)
@@ -244,8 +317,26 @@ def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1
             )
         loops = read_curve_file(key)
         name = Path(key).stem
-    loops = [np.asarray(loop, dtype=np.float64) * scale for loop in loops]
-    return Boundary(validate_loops(loops, f"'{key}'", domain=domain), name)
+    loops = validate_loops([np.asarray(loop, dtype=np.float64) * scale for loop in loops], f"'{key}'",
+                           domain=np.inf)
+    if max_vertices is not None:
+        loops = [_resample(lp, int(max_vertices), f"'{key}'" + (f" (loop {i})" if len(loops) > 1 else ""))
+                 for i, lp in enumerate(loops)]
+    factor, offset = box_normalisation(np.concatenate(loops), normalize, NORMALIZED_EXTENT, SAFE_EXTENT,
+                                       f"Curve '{key}'")
+    loops = [(lp - offset) / factor for lp in loops]
+    return Boundary(validate_loops(loops, f"'{key}'", domain=domain), name, factor, offset)
+
+
+def _resample(loop: np.ndarray, n: int, name: str) -> np.ndarray:
+    if len(loop) <= n:
+        return loop
+    out = resample_loop(loop, n)
+    before, after = polyline_length([loop]), polyline_length([out])
+    log.warning("Boundary %s has %d vertices; resampled by arc length to %d, corners kept (length %.6g → %.6g); "
+                "data.max_vertices_per_loop sets the limit (null keeps every vertex, at a cost per vertex in "
+                "every step and evaluation).", name, len(loop), n, before, after)
+    return out
 
 
 @dataclass

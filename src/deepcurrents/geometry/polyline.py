@@ -79,3 +79,44 @@ def polyline_hausdorff(
         return float(proj.distance.max())
 
     return max(one_side(a_starts, a_ends, b_starts, b_ends), one_side(b_starts, b_ends, a_starts, a_ends))
+
+
+def resample_loop(loop: np.ndarray, n: int, corner_degrees: float = 30.0) -> np.ndarray:
+    """A closed loop (M, D) resampled to ``n`` vertices spaced evenly by arc length, keeping its corners.
+
+    Vertices where the loop turns by more than ``corner_degrees`` are kept exactly (the sharpest first, at
+    most n // 2 of them); the other vertices are spread over the arcs between consecutive corners in
+    proportion to their lengths, so the vertex order (the orientation) and the start are unchanged.
+    A loop with at most ``n`` vertices is returned as it is. → (n, D).
+    """
+    loop = np.asarray(loop, dtype=np.float64)
+    m = len(loop)
+    if m <= n:
+        return loop
+    seg = np.roll(loop, -1, 0) - loop
+    lengths = np.linalg.norm(seg, axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(lengths)])  # arc[i] = position of vertex i; arc[m] = total
+    total = arc[-1]
+    # turning angle at each vertex, between the incoming and the outgoing segment
+    d_in, d_out = np.roll(seg, 1, 0), seg
+    cos = (d_in * d_out).sum(1) / np.maximum(lengths * np.roll(lengths, 1), 1e-300)
+    turn = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    corners = np.flatnonzero(turn > corner_degrees)
+    if len(corners) > n // 2:
+        corners = np.sort(corners[np.argsort(-turn[corners], kind="stable")[: n // 2]])
+    anchors = np.union1d(corners, [0])  # the first vertex stays first
+    starts = arc[anchors]
+    ends = np.append(starts[1:], total)
+    spans = ends - starts
+    # every arc keeps its anchor; the remaining vertices go to the arcs by length (largest remainders)
+    extra = n - len(anchors)
+    share = spans / total * extra
+    counts = np.floor(share).astype(int)
+    counts[np.argsort(-(share - counts), kind="stable")[: extra - counts.sum()]] += 1
+    positions = np.concatenate([s + span * np.arange(c + 1) / (c + 1) for s, span, c in zip(starts, spans, counts,
+                                                                                              strict=True)])
+    # points at those arc lengths along the closed polyline
+    closed = np.concatenate([loop, loop[:1]])
+    idx = np.clip(np.searchsorted(arc, positions, side="right") - 1, 0, m - 1)
+    frac = (positions - arc[idx]) / np.maximum(lengths[idx], 1e-300)
+    return closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])

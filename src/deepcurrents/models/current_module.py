@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import torch
+import trimesh
 
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method
 from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_to_area
@@ -17,11 +18,46 @@ from deepcurrents.nn import NeuralCurrent
 
 
 def boundary_spec(boundary) -> dict[str, Any]:
-    """A plain-data description of a Boundary/PointBoundary (stored in hyperparameters and checkpoints)."""
+    """A plain-data description of a Boundary/PointBoundary (stored in hyperparameters and checkpoints).
+    3D: loops in model coordinates, and ``scale``/``offset`` back to the input's (input = model·scale + offset)."""
     if hasattr(boundary, "loops"):
-        return {"loops": [np.asarray(lp).tolist() for lp in boundary.loops], "name": boundary.name}
+        spec = {"loops": [np.asarray(lp).tolist() for lp in boundary.loops], "name": boundary.name}
+        if getattr(boundary, "normalized", False):
+            spec.update(scale=float(boundary.scale), offset=np.asarray(boundary.offset, np.float64).tolist())
+        return spec
     return {"poles": np.asarray(boundary.points).tolist(), "signs": np.asarray(boundary.signs).tolist(),
             "name": boundary.name}
+
+
+def input_frame(boundary: dict) -> tuple[float, np.ndarray] | None:
+    """(scale, offset) of a normalised curve's ``boundary_spec`` (input = model·scale + offset), else None."""
+    if "scale" not in boundary and "offset" not in boundary:
+        return None
+    return float(boundary.get("scale", 1.0)), np.asarray(boundary.get("offset", np.zeros(3)), np.float64)
+
+
+# metrics that are lengths or areas, and their power of the scale
+_LENGTH_KEYS = {"mass_area": 2, "mass_area_stderr": 2, "mass_area_lower": 2, "mass_area_mc": 2,
+                "mass_area_mc_stderr": 2, "mesh_area": 2, "boundary_error": 1}
+
+
+def input_mesh(mesh: trimesh.Trimesh, frame: tuple[float, np.ndarray]) -> trimesh.Trimesh:
+    """A mesh in model coordinates moved to the input's (``input_frame``), e.g. for mesh.ply."""
+    return trimesh.Trimesh(np.asarray(mesh.vertices) * frame[0] + frame[1], mesh.faces, process=False)
+
+
+def metrics_in_input_units(metrics: dict[str, Any], scale: float, offset: np.ndarray) -> dict[str, Any]:
+    """A normalised curve's metrics in the input's units: each area/length key (mesh_area, mass_area, ...)
+    is rewritten in input units and its model-unit value kept as ``<key>_normalized``; the map is recorded
+    as ``normalization_scale`` and ``normalization_offset``. The optimisation ``loss`` stays as it is."""
+    out = dict(metrics)
+    for key, power in _LENGTH_KEYS.items():
+        if out.get(key) is not None:
+            out[f"{key}_normalized"] = out[key]
+            out[key] = out[key] * scale**power
+    out["normalization_scale"] = scale
+    out["normalization_offset"] = [float(v) for v in offset]
+    return out
 
 
 class CurrentModule(DeepCurrentsModule):
@@ -82,8 +118,13 @@ class CurrentModule(DeepCurrentsModule):
             result = extract_surface(self.current, **self.mesh_options())
             self.meshing = result  # subclasses evaluate the same mesh further
             loops = [lp.cpu().double().numpy() for lp in self.current.loops]
-            title = f"{self.hparams.boundary.get('name', '')}: area {result.mesh.area:.4f}"
-            metrics.update(self.write_mesh(out_dir, result, loops, title))
+            frame = input_frame(self.hparams.boundary)
+            # mesh.ply in the input's coordinates, its border on the user's curve
+            export = input_mesh(result.mesh, frame) if frame is not None else None
+            title = f"{self.hparams.boundary.get('name', '')}: area {result.mesh.area * (frame or (1.0,))[0]**2:.4g}"
+            metrics.update(self.write_mesh(out_dir, result, loops, title, export=export))
+            if frame is not None:
+                metrics = metrics_in_input_units(metrics, *frame)
         else:
             curves = extract_curve_2d(self.current, **self.evaluation.get("curve", {}))
             metrics["curve_length"] = curve_length(curves)
