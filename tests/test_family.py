@@ -69,13 +69,7 @@ def open_cylinder(sectors: int = 20, rows: int = 5, shuffle: int | None = None) 
     return trimesh.Trimesh(v, f, process=False)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """One torch thread: the test machine is shared, and two threads under contention run slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 # a training family: three different small discs, apart in space so that a few hundred CPU steps suffice
@@ -105,7 +99,7 @@ def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def trained(_one_thread, family_dir, tmp_path_factory):
+def trained(one_thread, family_dir, tmp_path_factory):
     """A tiny family trained on the CPU, and the same model untrained, both evaluated."""
     from deepcurrents.experiments.runner import build, train
 
@@ -325,16 +319,18 @@ def trained_dir(out: Path) -> Path:
 
 
 def test_resuming_with_another_family_is_one_sentence(trained, tmp_path):
+    from deepcurrents.errors import UserInputError
     from deepcurrents.experiments.runner import train
-    from deepcurrents.models.autodecoder import CheckpointMismatchError
 
     out, _, _ = trained
     for name in ("000_cap", "001_saddle"):  # two meshes instead of three
         disc_mesh(SHAPES[name]).export(tmp_path / f"{name}.ply")
     resume = f"ckpt_path={out / 'checkpoints' / 'last.ckpt'}"
     cfg = compose_cfg(tiny_overrides(tmp_path, tmp_path / "run", STEPS + 10) + [resume])
-    with pytest.raises(CheckpointMismatchError, match="another family"):
+    # checked before training (models.loading.check_resumable), naming the setting that differs
+    with pytest.raises(UserInputError, match="was trained with data.path=.*but this run has data.path="):
         train(cfg, out_dir=tmp_path / "run")
+    assert not (tmp_path / "run" / "checkpoints").exists()
 
 
 def brute_force_border_hausdorff(mesh: trimesh.Trimesh, loops: list[np.ndarray], step: float = 5e-4) -> float:
