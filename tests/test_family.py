@@ -69,7 +69,13 @@ def open_cylinder(sectors: int = 20, rows: int = 5, shuffle: int | None = None) 
     return trimesh.Trimesh(v, f, process=False)
 
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    """One torch thread: the test machine is shared, and two threads under contention run slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 # a training family: three different small discs, apart in space so that a few hundred CPU steps suffice
@@ -99,7 +105,7 @@ def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def trained(one_thread, family_dir, tmp_path_factory):
+def trained(_one_thread, family_dir, tmp_path_factory):
     """A tiny family trained on the CPU, and the same model untrained, both evaluated."""
     from deepcurrents.experiments.runner import build, train
 
