@@ -8,9 +8,11 @@ Tests that train for more than a few seconds carry `@pytest.mark.slow`: `pytest 
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -18,7 +20,7 @@ import torch
 import trimesh
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = str(ROOT / "conf")
@@ -48,14 +50,55 @@ def compose_cfg(overrides: Sequence[str], hydra_config: bool = False) -> DictCon
         return compose(config_name="train", overrides=list(overrides), return_hydra_config=hydra_config)
 
 
-def spherical_cap(radius: float = 0.5, height: float = 0.25, subdivisions: int = 3) -> trimesh.Trimesh:
-    """The part of a sphere (centre at the origin) above z = radius − height, outward normals: an open
-    surface whose rim is a circle, with 0.5 radius; its Euclidean minimal surface is the flat disk."""
+def spherical_cap(radius: float = 0.5, height: float = 0.25, subdivisions: int = 3,
+                  centre: Sequence[float] = (0.0, 0.0, 0.0)) -> trimesh.Trimesh:
+    """The part of a sphere (centre at the origin, then shifted by ``centre``) above z = radius − height,
+    outward normals: an open surface whose rim is one circle; its Euclidean minimal surface is the flat disk."""
     sphere = trimesh.creation.icosphere(subdivisions, radius=radius)
     keep = sphere.triangles_center[:, 2] > radius - height
-    cap = trimesh.Trimesh(sphere.vertices, sphere.faces[keep])
+    cap = trimesh.Trimesh(sphere.vertices + np.asarray(centre), sphere.faces[keep])
     cap.remove_unreferenced_vertices()
     return cap
+
+
+def write_oriented_cloud(mesh: trimesh.Trimesh, folder: Path, count: int = 3000) -> tuple[Path, Path, np.ndarray]:
+    """An oriented point cloud of ``mesh`` (``count`` surface samples, seed 0) as cloud.xyz (x y z nx ny nz) and
+    its first border loop as rim.txt, in ``folder``. → (cloud path, rim path, the points (count, 3))."""
+    from deepcurrents.data.targets import mesh_boundary_loops, sample_mesh_surface
+
+    pts, nrm = sample_mesh_surface(np.asarray(mesh.vertices), np.asarray(mesh.faces), count,
+                                   torch.Generator().manual_seed(0))
+    np.savetxt(folder / "cloud.xyz", np.hstack([pts, nrm]))
+    np.savetxt(folder / "rim.txt", mesh_boundary_loops(mesh.vertices, mesh.faces)[0])
+    return folder / "cloud.xyz", folder / "rim.txt", np.asarray(pts)
+
+
+def app_cfg(schema: type, **values: Any) -> DictConfig:
+    """An app's structured config (e.g. ``RenderConfig``) with dotted ``values`` set, as its command line would."""
+    cfg = OmegaConf.structured(schema)
+    for key, value in values.items():
+        OmegaConf.update(cfg, key, value)
+    return cfg
+
+
+class Payload:
+    """Unpickling this object runs a shell command (what a crafted checkpoint would do)."""
+
+    def __init__(self, command: str):
+        self.command = command
+
+    def __reduce__(self):
+        return (os.system, (self.command,))
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """One torch thread for a module (`pytestmark = pytest.mark.usefixtures("one_thread")`): the machine is
+    shared, contended threads run slower, and one thread adds reductions in the same order as subprocesses."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="session")

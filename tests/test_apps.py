@@ -12,7 +12,7 @@ import pytest
 import torch
 import trimesh
 import yaml
-from conftest import ROOT, compose_cfg
+from conftest import ROOT, app_cfg, compose_cfg
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
@@ -43,13 +43,6 @@ def run(tmp_path_factory):
     torch.manual_seed(0)
     train(compose_cfg(DISK), out_dir=out)
     return out
-
-
-def app_cfg(schema, **values):
-    cfg = OmegaConf.structured(schema)
-    for key, value in values.items():
-        OmegaConf.update(cfg, key, value)
-    return cfg
 
 
 def test_run_leaves_media_files(run):
@@ -166,6 +159,7 @@ def test_evaluate_gives_the_known_distance_of_a_known_pair(run, tmp_path):
         evaluate_checkpoint(app_cfg(EvaluateConfig, ckpt_path=ckpt, target=str(tmp_path / "nope.ply")))
 
 
+@pytest.mark.slow
 def test_cli_prints_one_sentence_for_bad_input(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "deepcurrents.extract", f"ckpt_path={tmp_path / 'x.ckpt'}"],
                           capture_output=True, text=True, cwd=tmp_path, timeout=300)
@@ -215,6 +209,7 @@ def test_slurm_launcher_composes():
     assert launcher.params["partition"] == "gpu" and launcher.params["gpus_per_node"] == 1
 
 
+@pytest.mark.slow
 def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     sweep = tmp_path / "sweep"
     proc = subprocess.run(

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, compose_cfg
+from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, Payload, app_cfg, compose_cfg, spherical_cap
 from omegaconf import OmegaConf
 
 from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
@@ -27,13 +27,8 @@ from deepcurrents.models.checkpointing import plain_data
 from deepcurrents.models.loading import CheckpointError, load_module, read_checkpoint
 
 
-def cap(height: float, radius: float = 0.3, centre=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
-    """The part of a sphere above z = radius − height: an open surface whose border is one circle."""
-    sphere = trimesh.creation.icosphere(2, radius=radius)
-    keep = sphere.triangles_center[:, 2] > radius - height
-    part = trimesh.Trimesh(sphere.vertices + np.asarray(centre), sphere.faces[keep])
-    part.remove_unreferenced_vertices()
-    return part
+def cap(height: float, centre=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
+    return spherical_cap(radius=0.3, height=height, subdivisions=2, centre=centre)
 
 
 @pytest.fixture(scope="module")
@@ -65,13 +60,6 @@ EVERY_2 = ["callbacks.model_checkpoint.every_n_train_steps=2", "callbacks.model_
 def kind_overrides(kind: str, shapes: Path, steps: int) -> list[str]:
     own = [o.replace("{shapes}", str(shapes)) for o in KINDS[kind]]
     return [*own, *QUIET_CPU, *TINY_EVAL, "evaluation.mesh.resolution=16", *EVERY_2, f"trainer.max_steps={steps}"]
-
-
-def app_cfg(schema, **values):
-    cfg = OmegaConf.structured(schema)
-    for key, value in values.items():
-        OmegaConf.update(cfg, key, value)
-    return cfg
 
 
 @pytest.mark.slow
@@ -140,16 +128,6 @@ def test_plain_data_turns_configs_and_arrays_into_plain_values():
     assert out["t"] == (1, "a") and type(out["s"]) is float
     with pytest.raises(TypeError, match=r"checkpoint\['bad'\]\[0\] holds a .*object"):
         plain_data({"bad": [object()]})
-
-
-class Payload:
-    """Unpickling this object runs a shell command (what a crafted checkpoint would do)."""
-
-    def __init__(self, command: str):
-        self.command = command
-
-    def __reduce__(self):
-        return (os.system, (self.command,))
 
 
 @pytest.fixture(scope="module")

@@ -4,12 +4,11 @@ under preset=paper and preset=cpu are pinned; one `evaluation` node; recon_part 
 
 from __future__ import annotations
 
+from functools import cache
 from pathlib import Path
 
-import numpy as np
 import pytest
-import torch
-from conftest import CONF_DIR, QUIET_CPU, TINY_NET, compose_cfg, spherical_cap
+from conftest import CONF_DIR, QUIET_CPU, TINY_NET, compose_cfg, spherical_cap, write_oriented_cloud
 from hydra.utils import get_object
 from omegaconf import OmegaConf, open_dict
 
@@ -23,6 +22,14 @@ PARTS = {"recon_head": "heads", "recon_hand": "hands", "recon_forearm": "forearm
          "recon_torso": "torsos", "recon_foot": "feet"}
 # chosen by the defaults list (preset × data, preset × model), never on the command line
 CHOSEN_BY_DEFAULTS = ("hydra", "preset_sizes")
+
+
+@cache
+def composed(*overrides: str):
+    """compose_cfg, once per distinct override list (read-only: tests share it)."""
+    cfg = compose_cfg(list(overrides))
+    OmegaConf.set_readonly(cfg, True)
+    return cfg
 
 
 def group_options() -> list[list[str]]:
@@ -78,14 +85,8 @@ def test_every_group_option_composes_resolves_and_imports(overrides):
 def inputs(tmp_path_factory, parts_root, cap_file) -> dict[str, list[str]]:
     """What each experiment needs from the user, made small: a cap mesh, an oriented cloud with its rim,
     a family of four caps, a human-part dataset."""
-    from deepcurrents.data.targets import mesh_boundary_loops, sample_mesh_surface
-
     root = tmp_path_factory.mktemp("inputs")
-    cap = spherical_cap(subdivisions=2)
-    pts, nrm = sample_mesh_surface(np.asarray(cap.vertices), np.asarray(cap.faces), 3000,
-                                   torch.Generator().manual_seed(0))
-    np.savetxt(root / "cloud.xyz", np.hstack([pts, nrm]))
-    np.savetxt(root / "rim.txt", mesh_boundary_loops(cap.vertices, cap.faces)[0])
+    cloud, rim, _ = write_oriented_cloud(spherical_cap(subdivisions=2), root)
     family = root / "family"
     family.mkdir()
     for i, height in enumerate((0.15, 0.2, 0.25, 0.3)):
@@ -94,7 +95,7 @@ def inputs(tmp_path_factory, parts_root, cap_file) -> dict[str, list[str]]:
     return {
         "minimal_curve": ["data.curve=circle"],
         "recon_mesh": [f"data.mesh={cap_file}"],
-        "recon_points": [f"data.points={root / 'cloud.xyz'}", f"data.curve={root / 'rim.txt'}"],
+        "recon_points": [f"data.points={cloud}", f"data.curve={rim}"],
         "latent_hands": [f"data.path={family}", "data.num_workers=0"],
         "latent_heads": [f"data.path={family}", "data.num_workers=0"],
         "recon_part": [*parts, "data.category=hands"],
@@ -112,7 +113,7 @@ def build_experiment(overrides: list[str]):
 @pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e not in SUITES])
 def test_every_experiment_builds_its_datamodule_and_module(experiment, inputs):
     datamodule, module = build_experiment([f"experiment={experiment}", *inputs.get(experiment, [])])
-    cfg = compose_cfg([f"experiment={experiment}"])
+    cfg = composed(f"experiment={experiment}", "preset=paper")
     assert type(module).__name__ == cfg.model._target_.rsplit(".", 1)[-1]
     assert type(datamodule).__name__ == cfg.data._target_.rsplit(".", 1)[-1]
     assert sum(p.numel() for p in module.parameters()) > 0
@@ -120,7 +121,7 @@ def test_every_experiment_builds_its_datamodule_and_module(experiment, inputs):
 
 @pytest.mark.parametrize("suite", SUITES)
 def test_every_suite_member_builds_and_the_report_imports(suite, inputs):
-    cfg = compose_cfg([f"experiment={suite}"])
+    cfg = composed(f"experiment={suite}", "preset=paper")
     assert callable(get_object(cfg.suite.report))
     for run in cfg.suite.runs:
         experiment = next(o.split("=", 1)[1] for o in run.overrides if o.startswith("experiment="))
@@ -175,7 +176,7 @@ LENGTHS = {
 
 @pytest.mark.parametrize("experiment, preset", sorted(LENGTHS), ids=lambda v: str(v))
 def test_lengths_and_sizes_of_every_experiment_are_pinned(experiment, preset):
-    cfg = compose_cfg([f"experiment={experiment}", f"preset={preset}"])
+    cfg = composed(f"experiment={experiment}", f"preset={preset}")
     got = tuple(OmegaConf.select(cfg, key) for key in COLUMNS)
     assert dict(zip(COLUMNS, got, strict=True)) == dict(zip(COLUMNS, LENGTHS[experiment, preset], strict=True))
 
@@ -198,12 +199,17 @@ def test_the_command_line_has_the_last_word_over_preset_sizes(preset):
 @pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e not in SUITES])
 @pytest.mark.parametrize("preset", ["paper", "cpu"])
 def test_models_read_the_one_evaluation_node(experiment, preset):
-    cfg = compose_cfg([f"experiment={experiment}", f"preset={preset}"])
+    cfg = composed(f"experiment={experiment}", f"preset={preset}")
+    # the model's node is the root node itself (so an override of evaluation.* reaches the module) ...
+    assert OmegaConf.to_container(cfg.model, resolve=False)["evaluation"] == "${evaluation}"
+    # ... and no preset or experiment wrote values beside it
     assert OmegaConf.to_container(cfg.model.evaluation, resolve=True) == OmegaConf.to_container(
         cfg.evaluation, resolve=True)
-    # an override of the root node reaches the module
-    cfg2 = compose_cfg([f"experiment={experiment}", f"preset={preset}", "evaluation.ucd_samples=123"])
-    assert cfg2.model.evaluation.ucd_samples == 123
+
+
+def test_an_evaluation_override_reaches_the_module():
+    cfg = compose_cfg(["experiment=latent_hands", "preset=cpu", "evaluation.ucd_samples=123"])
+    assert cfg.model.evaluation.ucd_samples == 123 and cfg.model.evaluation.mesh.resolution == 64
 
 
 def test_no_model_config_states_evaluation_values():
@@ -215,8 +221,8 @@ def test_no_model_config_states_evaluation_values():
 @pytest.mark.parametrize("alias, category", sorted(PARTS.items()))
 @pytest.mark.parametrize("preset", ["paper", "cpu"])
 def test_recon_part_aliases_are_recon_part_with_a_category(alias, category, preset):
-    old_cfg = compose_cfg([f"experiment={alias}", f"preset={preset}"])
-    new_cfg = compose_cfg(["experiment=recon_part", f"data.category={category}", f"preset={preset}"])
+    old_cfg = composed(f"experiment={alias}", f"preset={preset}")
+    new_cfg = composed("experiment=recon_part", f"data.category={category}", f"preset={preset}")
     assert old_cfg.task_name == alias and new_cfg.task_name == f"recon_{category}"
     # the same config but for the name (what the run directory and the logger's run are called after)
     old, new = (OmegaConf.to_container(c, resolve=False) for c in (old_cfg, new_cfg))

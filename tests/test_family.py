@@ -69,13 +69,7 @@ def open_cylinder(sectors: int = 20, rows: int = 5, shuffle: int | None = None) 
     return trimesh.Trimesh(v, f, process=False)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """One torch thread: the test machine is shared, and two threads under contention run slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 # a training family: three different small discs, apart in space so that a few hundred CPU steps suffice
@@ -105,7 +99,7 @@ def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def trained(_one_thread, family_dir, tmp_path_factory):
+def trained(one_thread, family_dir, tmp_path_factory):
     """A tiny family trained on the CPU, and the same model untrained, both evaluated."""
     from deepcurrents.experiments.runner import build, train
 
@@ -298,6 +292,7 @@ def per_shape(path: Path) -> list[dict]:
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.slow
 def test_tiny_family_trains_and_beats_an_untrained_model(trained):
     out, metrics, base = trained
     assert (out / "checkpoints" / "last.ckpt").is_file() and (out / "meshes.png").is_file()
@@ -324,6 +319,7 @@ def trained_dir(out: Path) -> Path:
     return Path(ckpt["deepcurrents"]["config"]["data"]["path"])
 
 
+@pytest.mark.slow
 def test_resuming_with_another_family_is_one_sentence(trained, tmp_path):
     from deepcurrents.errors import UserInputError
     from deepcurrents.experiments.runner import train
@@ -368,6 +364,7 @@ def run_module(*args: str) -> subprocess.CompletedProcess:
                           env={**os.environ, "PYTHONWARNINGS": "ignore"})
 
 
+@pytest.mark.slow
 def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp_path):
     from omegaconf import OmegaConf
 
@@ -428,6 +425,7 @@ def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp
     assert proc.returncode == 2 and "error: ckpt_path=" in proc.stderr and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_ddp_on_two_cpu_processes_end_to_end(family_dir, tmp_path):
     out = tmp_path / "ddp"
     overrides = [o for o in tiny_overrides(family_dir, out, 4) if not o.startswith("paths.")]

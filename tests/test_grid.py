@@ -192,6 +192,7 @@ def test_grid_is_sized_like_the_network_and_rejects_bad_input(tmp_path):
         assert "\n" not in str(info.value)
 
 
+@pytest.mark.slow
 def test_fig4_suite_writes_its_figure_and_table(tmp_path):
     cfg = compose_cfg(["experiment=fig4"])
     assert [r.name for r in cfg.suite.runs] == [f"{m}_{c}" for c in ("trefoil", "hopf", "borromean")

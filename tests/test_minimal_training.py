@@ -7,9 +7,11 @@ import math
 import numpy as np
 import pytest
 import torch
-from test_train import compose_cfg
+from conftest import compose_cfg
 
 from deepcurrents.experiments.runner import train
+
+pytestmark = pytest.mark.slow  # minutes of CPU training against exact answers
 
 SMALL = [
     "logger=csv", "preset=cpu", "trainer=cpu", "trainer.enable_progress_bar=false",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import QUIET_CPU, compose_cfg, hydra_context, spherical_cap
+from conftest import QUIET_CPU, compose_cfg, hydra_context, spherical_cap, write_oriented_cloud
 
 from deepcurrents.data.recon import ReconstructionDataModule, curve_metric_2d, semicircle
 from deepcurrents.errors import UserInputError
@@ -23,6 +23,7 @@ TINY = [*QUIET_CPU, "callbacks.model_checkpoint.every_n_train_steps=1000", "data
         "evaluation.mass_samples=2048", "evaluation.ucd_samples=4000"]
 
 
+@pytest.mark.slow
 def test_spherical_cap_is_reconstructed(tmp_path, cap_file):
     """After a short CPU run the UCD is far below the flat disk's (the minimal surface of the rim, which
     mass minimisation without the reconstruction metric would give): for uniform cap samples the distance
@@ -97,15 +98,9 @@ def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):
 
 
 def test_oriented_point_cloud_run(tmp_path):
-    cap = spherical_cap(subdivisions=2)
-    from deepcurrents.data.targets import mesh_boundary_loops, sample_mesh_surface
-
-    pts, nrm = sample_mesh_surface(np.asarray(cap.vertices), np.asarray(cap.faces), 3000,
-                                   torch.Generator().manual_seed(0))
-    np.savetxt(tmp_path / "cloud.xyz", np.hstack([pts, nrm]))
-    np.savetxt(tmp_path / "rim.txt", mesh_boundary_loops(cap.vertices, cap.faces)[0])
-    cfg = compose_cfg(["experiment=recon_points", f"data.points={tmp_path / 'cloud.xyz'}",
-                       f"data.curve={tmp_path / 'rim.txt'}", *TINY, "trainer.max_steps=2", "data.num_samples=64",
+    cloud, rim, pts = write_oriented_cloud(spherical_cap(subdivisions=2), tmp_path)
+    cfg = compose_cfg(["experiment=recon_points", f"data.points={cloud}", f"data.curve={rim}", *TINY,
+                       "trainer.max_steps=2", "data.num_samples=64",
                        "data.num_surface_samples=64", "model.rff.num_frequencies=16", "model.net.width=16",
                        "model.net.depth=1", "evaluation.mesh.resolution=24", "model.net.zero_init_output=false"])
     metrics = train(cfg, out_dir=tmp_path / "run")
@@ -155,6 +150,7 @@ SUITE_TINY = [*TINY, "data.num_samples=32", "data.num_surface_samples=32",
               "evaluation.mesh.resolution=16", "evaluation.mass_samples=512", "evaluation.ucd_samples=1000"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("experiment,table", [("hand_ablation", "hand_ablation"), ("table1", "table1")])
 def test_suites_write_their_tables(tmp_path, parts_root, experiment, table):
     overrides = [*SUITE_TINY, f"data.root={parts_root}"]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, compose_cfg
+from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, Payload, compose_cfg
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.experiments import run_dir
@@ -27,13 +27,7 @@ RUN = ["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL, "data.nu
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "HYDRA_FULL_ERROR": "0"}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """One thread, as in the subprocesses (ENV): reductions then add in the same order everywhere."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")  # as in the subprocesses (ENV): same reduction order
 
 
 def weights(path: Path) -> dict[str, torch.Tensor]:
@@ -75,6 +69,7 @@ def uninterrupted(tmp_path_factory) -> Path:
     return out / "checkpoints" / "last.ckpt"
 
 
+@pytest.mark.slow
 def test_resumed_in_process_run_equals_the_uninterrupted_one(tmp_path):
     """k < N steps (checkpoint every 2), then ckpt_path=auto to N: the weights, the optimiser's moments and
     the step count equal those of N steps in one go."""
@@ -93,6 +88,7 @@ def test_resumed_in_process_run_equals_the_uninterrupted_one(tmp_path):
     assert ca["lr_schedulers"][0]["last_epoch"] == cb["lr_schedulers"][0]["last_epoch"] == 7
 
 
+@pytest.mark.slow
 def test_kill_9_then_auto_resume_equals_the_uninterrupted_run(tmp_path, uninterrupted):
     out = tmp_path / "run"
     proc = start_cli([*RUN, f"hydra.run.dir={out}"])
@@ -110,6 +106,7 @@ def test_kill_9_then_auto_resume_equals_the_uninterrupted_run(tmp_path, uninterr
     assert not (out / run_dir.LOCK_NAME).exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGUSR1], ids=["SIGTERM", "SIGUSR1"])
 def test_preemption_signal_writes_a_checkpoint_and_resume_reaches_the_same_weights(tmp_path, uninterrupted,
                                                                                    signum):
@@ -186,6 +183,7 @@ def test_resume_with_another_model_boundary_or_size_is_one_sentence(tmp_path, tr
                        f"ckpt_path={first / 'checkpoints/last.ckpt'}"], "another boundary")
 
 
+@pytest.mark.slow
 def test_crafted_checkpoint_runs_nothing_on_resume(tmp_path, trefoil_ckpt):
     marker = tmp_path / "MARKER"
     evil = tmp_path / "evil.ckpt"
@@ -201,16 +199,7 @@ def test_crafted_checkpoint_runs_nothing_on_resume(tmp_path, trefoil_ckpt):
     assert not marker.exists()
 
 
-class Payload:
-    """Unpickling this object runs a shell command (what a crafted checkpoint would do)."""
-
-    def __init__(self, command: str):
-        self.command = command
-
-    def __reduce__(self):
-        return (os.system, (self.command,))
-
-
+@pytest.mark.slow
 def test_cli_resume_errors_exit_2_without_traceback(tmp_path):
     text = tmp_path / "notes.ckpt"
     text.write_text("not a checkpoint\n")

@@ -76,6 +76,7 @@ def test_bad_input_stops_before_training_with_one_sentence(tmp_path, overrides, 
     assert not (tmp_path / "checkpoints").exists()
 
 
+@pytest.mark.slow
 def test_cli_prints_one_sentence_without_traceback(tmp_path):
     bad = bad_obj(tmp_path)
     proc = subprocess.run(
