@@ -116,26 +116,20 @@ def test_the_graph_sees_every_room(graph):
     assert any(in_room(t, "lightning") for t in graph[f"{PACKAGE}.models.base"][1])
 
 
+def violations(graph, rule) -> list[str]:
+    """Every import (outside a main guard) for which ``rule(module, target)`` is true, one line each."""
+    return [f"{module} imports {target} (line {line})" for module, (everywhere, _) in graph.items()
+            for target, line in everywhere if rule(module, target)]
+
+
 def test_library_rooms_do_not_import_apps_or_experiments(graph):
-    bad = [
-        f"{module} imports {target} (line {line})"
-        for module, (everywhere, _) in graph.items()
-        if room(module) in LIBRARY_ROOMS
-        for target, line in everywhere
-        if any(in_room(target, app) for app in APP_ROOMS)
-    ]
+    bad = violations(graph, lambda m, t: room(m) in LIBRARY_ROOMS and any(in_room(t, app) for app in APP_ROOMS))
     assert not bad, "library rooms must not import cli/ or experiments/:\n" + "\n".join(bad)
 
 
 @pytest.mark.parametrize("lower", sorted(FORBIDDEN_BELOW))
 def test_lower_rooms_do_not_import_upper_ones(graph, lower):
-    bad = [
-        f"{module} imports {target} (line {line})"
-        for module, (everywhere, _) in graph.items()
-        if room(module) == lower
-        for target, line in everywhere
-        if any(in_room(target, upper) for upper in FORBIDDEN_BELOW[lower])
-    ]
+    bad = violations(graph, lambda m, t: room(m) == lower and any(in_room(t, up) for up in FORBIDDEN_BELOW[lower]))
     assert not bad, f"{lower} must not import {', '.join(FORBIDDEN_BELOW[lower])}:\n" + "\n".join(bad)
 
 
@@ -150,13 +144,11 @@ def test_every_room_has_a_layer(graph):
 
 
 def test_rooms_import_only_from_lower_layers(graph):
-    bad = [
-        f"{module} (layer {LAYERS[room(module)]}) imports {target} (layer {LAYERS[room(target)]}, line {line})"
-        for module, (everywhere, _) in graph.items()
-        for target, line in everywhere
-        if target.startswith(f"{PACKAGE}.") and room(target) != room(module)
-        and LAYERS.get(room(target), 99) >= LAYERS.get(room(module), 0)
-    ]
+    def against(module: str, target: str) -> bool:
+        return (target.startswith(f"{PACKAGE}.") and room(target) != room(module)
+                and LAYERS.get(room(target), 99) >= LAYERS.get(room(module), 0))
+
+    bad = violations(graph, against)
     assert not bad, "imports against the layers of docs/architecture.md:\n" + "\n".join(bad)
 
 

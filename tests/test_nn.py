@@ -47,7 +47,6 @@ def test_fourier_features_values_and_frozen():
 
 
 def test_gradient_matches_finite_differences():
-    torch.manual_seed(0)
     model = paper_current(num_frequencies=64, width=32, depth=2).double()
     x = torch.rand(6, 3, dtype=torch.float64) * 1.6 - 0.8
     f, omega = model(x, create_graph=False)
