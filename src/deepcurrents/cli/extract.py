@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import hydra
 import numpy as np
@@ -68,15 +69,15 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     device = resolve_device(cfg.device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
+    out = output_dir(cfg.ckpt_path, cfg.out_dir)  # before meshing: an unwritable folder is said at once
     if current.dim == 2:  # a 2D current's "surface" is a curve: its polylines, like the run's curve.npz
-        return extract_curve(module, current, cfg)
+        return extract_curve(module, current, cfg, out)
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
                              boundary_tube=cfg.boundary_tube, close_boundary=cfg.close_boundary,
                              newton_steps=cfg.newton_steps, method=cfg.method, min_alignment=cfg.min_alignment,
                              min_component=cfg.min_component, padding=cfg.padding)
     result = extract_surface(current, **settings)
     mesh = result.mesh
-    out = output_dir(cfg.ckpt_path, cfg.out_dir)
     stem = f"mesh_r{cfg.resolution}"
     path = out / f"{stem}.{fmt}"
     mesh.export(path)
@@ -90,13 +91,12 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     return summary
 
 
-def extract_curve(module, current, cfg: DictConfig) -> dict:
+def extract_curve(module, current, cfg: DictConfig, out: Path) -> dict:
     """A 2D current's curve at ``cfg.resolution`` (the run's ``evaluation.curve`` settings otherwise):
-    ``curve_r<resolution>.npz`` (one (K, 2) polyline per array) and its summary."""
+    ``out/curve_r<resolution>.npz`` (one (K, 2) polyline per array) and its summary."""
     evaluation = getattr(module, "evaluation", None) or (module.run_config or {}).get("evaluation") or {}
     settings = {**dict(evaluation.get("curve") or {}), "resolution": int(cfg.resolution)}
     curves = extract_curve_2d(current, **settings)
-    out = output_dir(cfg.ckpt_path, cfg.out_dir)
     path = out / f"curve_r{cfg.resolution}.npz"
     np.savez(path, *curves)
     summary = {"curve": str(path), "resolution": int(cfg.resolution), "curve_length": curve_length(curves),
