@@ -11,7 +11,9 @@ import pytest
 import torch
 import trimesh
 from conftest import QUIET_CPU, TINY_NET, compose_cfg
+from omegaconf import OmegaConf
 
+from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
 from deepcurrents.data import MinimalSurfaceDataModule
 from deepcurrents.errors import ConfigError, UserInputError
 from deepcurrents.eval.metrics import boundary_error
@@ -217,6 +219,16 @@ def test_millimetre_circle_gives_the_disk_in_millimetres(tmp_path):
     # (the model's Γ is float32: 1e-7 of the curve's 250 mm offset)
     assert err == pytest.approx(metrics["boundary_error"], rel=1e-3, abs=1e-6 * 250)
     assert err < 0.02 * radius
+    # the extract app writes the checkpoint's mesh in millimetres too
+    cfg = OmegaConf.structured(ExtractConfig)
+    for key, value in {"ckpt_path": str(tmp_path / "run" / "checkpoints" / "last.ckpt"), "out_dir": str(tmp_path / "x"),
+                       "resolution": 48, "picture": False}.items():
+        OmegaConf.update(cfg, key, value)
+    summary = extract_checkpoint(cfg)
+    assert summary["mesh_area"] == pytest.approx(metrics["mesh_area"], rel=1e-3)
+    assert summary["mesh_area_normalized"] * summary["normalization_scale"] ** 2 == pytest.approx(summary["mesh_area"])
+    extracted = trimesh.load(summary["mesh"], process=False)
+    assert boundary_error(extracted, [loop]) < 0.02 * radius
 
 
 @pytest.mark.slow

@@ -24,6 +24,7 @@ from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import curve_length, mesh_summary
 from deepcurrents.eval.render import Camera, render_mesh
+from deepcurrents.models.current_module import input_frame, input_mesh, metrics_in_input_units
 from deepcurrents.models.loading import load_module, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.extract")
@@ -80,9 +81,15 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     mesh = result.mesh
     stem = f"mesh_r{cfg.resolution}"
     path = out / f"{stem}.{fmt}"
-    mesh.export(path)
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     summary = {"mesh": str(path), "resolution": int(cfg.resolution), **mesh_summary(result, loops)}
+    # a curve that data.normalize moved into the box: the mesh and its numbers in the curve's own coordinates
+    frame = input_frame((getattr(module, "hparams", None) or {}).get("boundary") or {})
+    if frame is not None:
+        input_mesh(mesh, frame).export(path)
+        summary = metrics_in_input_units(summary, *frame)
+    else:
+        mesh.export(path)
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))
     if cfg.picture:
         render_mesh(mesh, loops, Camera(width=480, height=480), out / f"{stem}.png",
