@@ -257,3 +257,23 @@ def test_anny_smooth_borders_are_smoother_than_mesh_edge_cuts():
     assert smallest_angle(v_s, f_s) >= smallest_angle(v_f, f_f) - 1e-6
     with pytest.raises(DatasetError, match="border='zigzag'"):
         anny_parts(1, model=model, border="zigzag")
+
+
+def test_make_dataset_border_flag(tmp_path, capsys):
+    """--border is written to meta.json; on the fixture (each label a whole piece) both cuts give the same
+    meshes; an unknown border stops argparse with status 2."""
+    import json
+
+    write_faust_fixture(tmp_path)
+    for border in ("faces", "smooth"):
+        main(["--source", "faust", "--faust-root", str(tmp_path), "--out", str(tmp_path / border),
+              "--border", border, "--categories", "hands"])
+        meta = json.loads((tmp_path / border / "faust" / "hands" / "meta.json").read_text())
+        assert meta["border"] == border and meta["count"] == 3
+    a = trimesh.load(tmp_path / "faces" / "faust" / "hands" / "001.ply", process=False)
+    b = trimesh.load(tmp_path / "smooth" / "faust" / "hands" / "001.ply", process=False)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-7)
+    with pytest.raises(SystemExit) as err:
+        main(["--source", "faust", "--faust-root", str(tmp_path), "--border", "zigzag"])
+    assert err.value.code == 2 and "zigzag" in capsys.readouterr().err
