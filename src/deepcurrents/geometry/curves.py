@@ -283,8 +283,8 @@ def box_normalisation(points: np.ndarray, mode: bool | str, half_extent: float, 
     if mode == "auto":
         mode = reach > safe_extent
         if mode:
-            log.info("%s reaches %.4g from the centre of the box (safe: %g); it is centred and scaled into "
-                     "[-%g, %g]^3 (data.normalize=auto; outputs are written back in its own coordinates).",
+            log.info("%s reaches |coordinate| = %.4g (safe: %g); it is centred and scaled into [-%g, %g]^3 "
+                     "(data.normalize=auto; outputs are written back in its own coordinates).",
                      what, reach, safe_extent, half_extent, half_extent)
     if not mode:
         return 1.0, np.zeros(3)
