@@ -196,6 +196,7 @@ def test_awkward_curves_train_and_mesh(tmp_path, kind):
 # ------------------------------------------------------------------------------------ trained, in input units
 
 
+@pytest.mark.slow
 def test_millimetre_circle_gives_the_disk_in_millimetres(tmp_path):
     radius = 40.0
     loop = tilted_circle_mm(radius)

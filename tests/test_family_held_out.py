@@ -130,6 +130,7 @@ def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
         AutodecoderModule(**{**module.hparams, "interpolation_weight": -1.0})
 
 
+@pytest.mark.slow
 def test_final_evaluation_reports_held_out_shapes(discs, tmp_path):
     from deepcurrents.experiments.runner import train
 
