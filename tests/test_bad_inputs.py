@@ -15,8 +15,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, compose_cfg
-from omegaconf import OmegaConf
+from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, app_cfg, compose_cfg, spherical_cap
 
 from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
 from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
@@ -36,11 +35,7 @@ def write(path: Path, text: str) -> Path:
 
 
 def cap(height: float = 0.2, centre=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
-    sphere = trimesh.creation.icosphere(2, radius=0.3)
-    keep = sphere.triangles_center[:, 2] > 0.3 - height
-    part = trimesh.Trimesh(sphere.vertices + np.asarray(centre), sphere.faces[keep])
-    part.remove_unreferenced_vertices()
-    return part
+    return spherical_cap(radius=0.3, height=height, subdivisions=2, centre=centre)
 
 
 def circle_rows(n: int = 24, r: float = 0.5) -> str:
@@ -200,13 +195,6 @@ def family(tmp_path_factory) -> Path:
                        "data.augment=false", "model.latent_dim=8", "model.boundary_dim=8", "data.num_workers=0",
                        "data.num_surface_samples=64", *TINY]), out_dir=root / "run")
     return root / "run" / "checkpoints" / "last.ckpt"
-
-
-def app_cfg(schema, **values):
-    cfg = OmegaConf.structured(schema)
-    for key, value in values.items():
-        OmegaConf.update(cfg, key, value)
-    return cfg
 
 
 def foreign(tmp: Path) -> Path:

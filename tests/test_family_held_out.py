@@ -20,13 +20,7 @@ from deepcurrents.eval.metrics import point_mesh_distance
 from deepcurrents.losses import current_loss
 from deepcurrents.models.autodecoder import AutodecoderModule
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
