@@ -76,12 +76,16 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 CENTRES = {"000_cap": (-0.5, 0.0, 0.0), "001_saddle": (0.5, 0.0, 0.0), "002_wave": (0.0, 0.0, 0.55)}
 
 
-@pytest.fixture(scope="module")
-def family_dir(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("discs")
+def write_family(d: Path) -> Path:
+    """The training family (SHAPES at CENTRES) as d/NNN_name.ply. → d"""
     for name, h in SHAPES.items():
         disc_mesh(h, radius=0.25, center=CENTRES[name]).export(d / f"{name}.ply")
     return d
+
+
+@pytest.fixture(scope="module")
+def family_dir(tmp_path_factory) -> Path:
+    return write_family(tmp_path_factory.mktemp("discs"))
 
 
 def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_family import CENTRES, SHAPES, compose_cfg, disc_mesh, tiny_overrides
+from test_family import SHAPES, compose_cfg, disc_mesh, tiny_overrides, write_family
 
 from deepcurrents.data.family import FamilyDataModule, collate_shapes, split_held_out
 from deepcurrents.data.targets import MeshTarget, target_sample
@@ -26,9 +26,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 @pytest.fixture(scope="module")
 def discs(tmp_path_factory) -> Path:
     """Four discs: the three of test_family and a fourth cap, lower, to hold out."""
-    d = tmp_path_factory.mktemp("discs4")
-    for name, h in SHAPES.items():
-        disc_mesh(h, radius=0.25, center=CENTRES[name]).export(d / f"{name}.ply")
+    d = write_family(tmp_path_factory.mktemp("discs4"))
     disc_mesh(lambda x, y: 1.2 * (0.35**2 - x**2 - y**2), radius=0.25, center=(0.0, 0.0, -0.5)).export(
         d / "003_low_cap.ply")
     return d
