@@ -277,3 +277,32 @@ def test_make_dataset_border_flag(tmp_path, capsys):
     with pytest.raises(SystemExit) as err:
         main(["--source", "faust", "--faust-root", str(tmp_path), "--border", "zigzag"])
     assert err.value.code == 2 and "zigzag" in capsys.readouterr().err
+
+
+def test_snapping_never_pinches_a_saddle():
+    """A saddle field x·y + ε on a flat grid: the crossings next to the centre are within ``snap`` of it, but
+    snapping the centre onto the level set would pinch the part there (two border arcs through one vertex)
+    and, reduced to one component, keep only one of its two quadrants; the cut keeps the centre's own value
+    instead: one manifold part with both quadrants."""
+    h = 0.25
+    xs = np.arange(-4, 5) * h
+    gx, gy = np.meshgrid(xs, xs, indexing="ij")
+    verts = np.c_[gx.ravel(), gy.ravel(), np.zeros(gx.size)]
+    n = len(xs)
+    faces = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            faces += [[a, b, d], [b, c, d]]  # diagonals along (1, −1): the centre sees both negative wedges
+    faces = np.array(faces)
+    field = verts[:, 0] * verts[:, 1] + 1e-3
+    centre = n * n // 2
+    edges = np.unique(np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    ring = np.unique(edges[(edges == centre).any(1)])
+    assert (field[ring] < 0).sum() == 2  # a saddle: two negative neighbours, apart
+    cut = level_set_cut(verts, faces, field, snap=0.2)
+    _, per_vertex = loop_stats(cut.apply(verts), cut.faces)
+    assert (per_vertex == 2).all()
+    part = cut.apply(verts)
+    assert trimesh.Trimesh(part, cut.faces, process=False).area > 1.95  # both unit quadrants {x·y > 0}
+    assert np.abs(part).sum(1).min() == 0.0  # the centre is still a vertex of the part

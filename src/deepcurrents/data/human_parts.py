@@ -208,21 +208,28 @@ def level_set_cut(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, s
     faces = np.asarray(faces, np.int64)
     values = np.asarray(values, np.float64)
     snapped = _snap_values(faces, values, snap)
-    for _ in range(10):  # a snapped saddle vertex would pinch the part: keep its own value instead
-        cut = _split_at_zero(vertices, faces, snapped, values, keep_faces)
-        pinched = _pinched_vertices(cut.faces)
-        rows = cut.weights[pinched].tocoo()
-        orig = rows.col[rows.data == 1.0]  # pinch points that are original vertices
-        orig = orig[(snapped[orig] == 0) & (values[orig] != 0)]
-        if len(orig) == 0:
-            return cut
-        snapped[orig] = values[orig]
-    return cut
+    for _ in range(10):
+        # a snapped saddle vertex would pinch the part (or, once reduced to one component, cut it in two
+        # there): such vertices keep their own value. Part vertices below V are the mesh's own.
+        weights, part_faces = _split_at_zero(vertices, faces, snapped, values, keep_faces)
+        pinched = _pinched_vertices(part_faces)
+        pinched = pinched[pinched < len(vertices)]
+        pinched = pinched[(snapped[pinched] == 0) & (values[pinched] != 0)]
+        if len(pinched) == 0:
+            break
+        snapped[pinched] = values[pinched]
+    part_faces = part_faces[largest_component(part_faces)]
+    used = np.unique(part_faces)
+    remap = np.full(weights.shape[0], -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return PartCut(weights[used], remap[part_faces])
 
 
 def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, original: np.ndarray,
-                   keep_faces: np.ndarray | None) -> PartCut:
-    """The {values ≥ 0} part of the mesh (see ``level_set_cut``), values with exact zeros after snapping."""
+                   keep_faces: np.ndarray | None) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
+    """The {values ≥ 0} part of the mesh (see ``level_set_cut``), values with exact zeros after snapping.
+
+    → (weights (V + P, V): the mesh's vertices then the P crossing points, faces (F', 3) indexing them)."""
     sign = np.sign(values).astype(np.int64)[faces]  # (F, 3)
     pos, neg = (sign > 0).sum(1), (sign < 0).sum(1)
     # all-zero triangles (a snapped triangle) follow the mean of the unsnapped field
@@ -268,7 +275,6 @@ def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, 
             else:
                 new_faces.append(np.array([[pb, b, pc], [b, c, pc]]))
     all_faces = np.concatenate(new_faces).astype(np.int64)
-    all_faces = all_faces[largest_component(all_faces)]
     # the weights: identity rows for the mesh's vertices, then (1 − t, t) rows for the crossing points
     i, o, t = (np.array(x).reshape(-1) for x in zip(*point_rows, strict=True)) if point_rows else \
         (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
@@ -277,10 +283,7 @@ def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, 
         (np.concatenate([np.ones(n), 1.0 - t, t]),
          (np.concatenate([np.arange(n), ids, ids]), np.concatenate([np.arange(n), i, o]).astype(np.int64))),
         shape=(n + len(point_rows), n))
-    used = np.unique(all_faces)
-    remap = np.full(full.shape[0], -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return PartCut(full[used], remap[all_faces])
+    return full, all_faces
 
 
 def smooth_label_field(faces: np.ndarray, in_part: np.ndarray, num_vertices: int,
