@@ -327,6 +327,7 @@ def plot(rows: list[dict], path: Path, threshold: float) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     names = list(dict.fromkeys(r["curve"] for r in rows))
     fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
@@ -337,6 +338,8 @@ def plot(rows: list[dict], path: Path, threshold: float) -> None:
         ax.axhline(threshold, color="grey", lw=0.8, ls="--")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+        ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.1f"))
         ax.set_title(name + (" (held out)" if any(r.get("heldout") for r in rows if r["curve"] == name) else ""))
         ax.set_xlabel("seconds (wall clock, setup included)")
         ax.set_ylabel("mass bound / exact area")

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from scipy.ndimage import map_coordinates
 
-from deepcurrents.eval.meshing.grid_angle import grid_solid_angle
+from deepcurrents.eval.meshing.grid_angle import grid_phase
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.geometry.biot_savart import solid_angle
 
@@ -38,10 +38,9 @@ class PhaseMethod(MeshMethod):
     name = "phase"
 
     def sample(self, points, shape, loops, voxel):
-        f = self.current.evaluate(points, self.chunk_size, omega=False)
-        # Ω exactly near Γ and interpolated elsewhere (meshing.grid_angle): the closed form at every node
-        # was most of the meshing time
-        phase = f.double() / (2.0 * self.current.alpha_scale) + 0.5 * grid_solid_angle(points, shape, loops)
+        # exact near Γ and where a sheet crosses, interpolated elsewhere (meshing.grid_angle): the network and
+        # the solid angle's closed form at every node were most of the meshing time
+        phase = grid_phase(self.current, points, shape, loops)
         self.theta = float(torch.angle(torch.exp(1j * phase).mean()))  # off the surface, where most of the grid is
         rel = (phase - self.theta).cpu().numpy().reshape(tuple(shape))
         self._side = np.cos(rel)
