@@ -27,8 +27,9 @@ CHOSEN_BY_DEFAULTS = ("hydra", "preset_sizes")
 
 @cache
 def composed(*overrides: str):
-    """compose_cfg, once per distinct override list (read-only: tests share it)."""
-    cfg = compose_cfg(list(overrides))
+    """compose_cfg with the `hydra` node (its group choices), once per distinct override list (read-only: tests
+    share it)."""
+    cfg = compose_cfg(list(overrides), hydra_config=True)
     OmegaConf.set_readonly(cfg, True)
     return cfg
 
@@ -189,6 +190,13 @@ def test_lengths_and_sizes_of_every_experiment_are_pinned(experiment, preset):
     assert dict(zip(COLUMNS, got, strict=True)) == dict(zip(COLUMNS, LENGTHS[experiment, preset], strict=True))
 
 
+def test_every_preset_sizes_file_is_chosen_by_some_experiment():
+    chosen = {(group, composed(f"experiment={e}", f"preset={p}").hydra.runtime.choices.get(f"preset_sizes/{group}"))
+              for e in EXPERIMENTS if e not in SUITES for p in ("paper", "cpu") for group in ("data", "model")}
+    files = {(path.parent.name, path.stem) for path in (CONF / "preset_sizes").glob("*/*.yaml")}
+    assert len(files) >= 11 and files <= chosen, f"never chosen (a misspelt data or model name?): {files - chosen}"
+
+
 def test_the_table_covers_every_experiment():
     runs = {e for e in EXPERIMENTS if e not in SUITES and e not in PARTS}
     assert {e for e, _ in LENGTHS} == runs
@@ -234,7 +242,8 @@ def test_recon_part_aliases_are_recon_part_with_a_category(alias, category, pres
     assert old_cfg.task_name == alias and new_cfg.task_name == f"recon_{category}"
     # the same config but for the name (what the run directory and the logger's run are called after)
     old, new = (OmegaConf.to_container(c, resolve=False) for c in (old_cfg, new_cfg))
-    old.pop("task_name"), new.pop("task_name")
+    for key in ("task_name", "hydra"):  # hydra: the command line that composed it
+        old.pop(key), new.pop(key)
     assert old == new
 
 
