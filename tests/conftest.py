@@ -73,6 +73,12 @@ def write_oriented_cloud(mesh: trimesh.Trimesh, folder: Path, count: int = 3000)
     return folder / "cloud.xyz", folder / "rim.txt", np.asarray(pts)
 
 
+def written_curve_length(path: Path) -> float:
+    """The total length of the open polylines in a 2D run's curve.npz (one (K, 2) array per piece)."""
+    pieces = np.load(path)
+    return float(sum(np.linalg.norm(np.diff(pieces[k], axis=0), axis=1).sum() for k in pieces.files))
+
+
 def app_cfg(schema: type, **values: Any) -> DictConfig:
     """An app's structured config (e.g. ``RenderConfig``) with dotted ``values`` set, as its command line would."""
     cfg = OmegaConf.structured(schema)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import QUIET_CPU, compose_cfg, hydra_context, spherical_cap, write_oriented_cloud
+from conftest import QUIET_CPU, compose_cfg, hydra_context, spherical_cap, write_oriented_cloud, written_curve_length
 
 from deepcurrents.data.recon import ReconstructionDataModule, curve_metric_2d, semicircle
 from deepcurrents.errors import UserInputError
@@ -142,7 +142,8 @@ def test_semicircle_run_writes_its_curve(tmp_path):
                        "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=1",
                        "evaluation.curve.resolution=32"])
     metrics = train(cfg, out_dir=tmp_path)
-    assert "curve_length" in metrics and (tmp_path / "current.png").is_file()
+    assert (tmp_path / "current.png").is_file()
+    assert metrics["curve_length"] == pytest.approx(written_curve_length(tmp_path / "curve.npz"), rel=1e-9)
 
 
 SUITE_TINY = [*TINY, "data.num_samples=32", "data.num_surface_samples=32",
