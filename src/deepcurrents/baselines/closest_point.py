@@ -39,7 +39,8 @@ class ClosestPointModule(DeepCurrentsModule):
 
     Batches: ``ReconstructionDataModule(batch_kind="closest_point")`` → {"x", "closest"}.
     Stops when the training time reaches ``time_budget_s`` (or the ``train_seconds`` read from
-    ``wall_time_from`` when training starts), else at ``trainer.max_steps``.
+    ``wall_time_from`` when training starts) or at ``trainer.max_steps``, whichever comes first: the
+    recon_baseline experiment caps steps at 1e6 under every preset, so that its budget is the stop.
     """
 
     def __init__(self, net: dict, optim: dict, rff: dict | None = None, evaluation: dict | None = None,
@@ -69,10 +70,6 @@ class ClosestPointModule(DeepCurrentsModule):
             self.time_budget_s = read_wall_time(self.wall_time_from)
             log.info("closest-point baseline: training for %.1f s (the wall time of %s)", self.time_budget_s,
                      self.wall_time_from)
-        if self.time_budget_s is not None and self.trainer.max_steps != -1:
-            # the budget is the stop: a step cap from a preset (preset=cpu's 1000) would hand the baseline
-            # less time than the run it is compared with
-            self.trainer.fit_loop.epoch_loop.max_steps = -1
         super().on_train_start()
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
