@@ -330,16 +330,21 @@ def plot(rows: list[dict], path: Path, threshold: float) -> None:
     import matplotlib.ticker
 
     names = list(dict.fromkeys(r["curve"] for r in rows))
+    recipes = sorted(dict.fromkeys(r["recipe"] for r in rows), key=lambda n: (n not in RECIPES, list(RECIPES).index(n)
+                                                                             if n in RECIPES else 0, n))
+    colours = {n: f"C{i}" for i, n in enumerate(recipes)}  # one colour per recipe in every panel
     fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
     for ax, name in zip(axes[0], names, strict=True):
-        for recipe in dict.fromkeys(r["recipe"] for r in rows if r["curve"] == name):
+        for recipe in recipes:
             pts = sorted((r["seconds"], r["ratio"]) for r in rows if r["curve"] == name and r["recipe"] == recipe)
-            ax.plot(*zip(*pts, strict=True), marker="o", ms=3, label=recipe)
+            if pts:
+                ax.plot(*zip(*pts, strict=True), marker="o", ms=3, label=recipe, color=colours[recipe])
         ax.axhline(threshold, color="grey", lw=0.8, ls="--")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
         ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.1f"))
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_title(name + (" (held out)" if any(r.get("heldout") for r in rows if r["curve"] == name) else ""))
         ax.set_xlabel("seconds (wall clock, setup included)")
         ax.set_ylabel("mass bound / exact area")
