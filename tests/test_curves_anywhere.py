@@ -5,6 +5,7 @@ a loop through a sample point)."""
 import json
 import logging
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -45,6 +46,14 @@ def tilted_circle_mm(radius_mm: float = 40.0, n: int = 200) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ normalisation
+
+
+def mm_circle_file(folder: Path, radius_mm: float) -> tuple[np.ndarray, Path]:
+    """``tilted_circle_mm(radius_mm)`` written as a one-loop .txt curve file in ``folder``. → (loop, path)."""
+    loop = tilted_circle_mm(radius_mm)
+    path = folder / "rim_mm.txt"
+    np.savetxt(path, loop)
+    return loop, path
 
 
 def test_box_normalisation_auto_only_beyond_the_safe_extent():
@@ -199,9 +208,7 @@ def test_awkward_curves_train_and_mesh(tmp_path, kind):
 @pytest.mark.slow
 def test_millimetre_circle_gives_the_disk_in_millimetres(tmp_path):
     radius = 40.0
-    loop = tilted_circle_mm(radius)
-    path = tmp_path / "rim_mm.txt"
-    np.savetxt(path, loop)
+    loop, path = mm_circle_file(tmp_path, radius)
     # a planar circle's phase mesh is the disk after few steps: this checks units, not training
     overrides = ["experiment=minimal_curve", f"data.curve={path}", "trainer.max_steps=60",
                  "evaluation.mesh.resolution=48"]
@@ -253,9 +260,7 @@ def test_enneper_at_097_gets_the_exact_area(tmp_path):
 @pytest.mark.slow
 def test_grid_method_reports_a_millimetre_curve_in_millimetres(tmp_path):
     radius = 40.0
-    loop = tilted_circle_mm(radius)
-    path = tmp_path / "rim_mm.txt"
-    np.savetxt(path, loop)
+    loop, path = mm_circle_file(tmp_path, radius)
     overrides = ["experiment=minimal_grid", f"data.curve={path}", "model.grid.resolution=32",
                  "trainer.max_steps=150", "evaluation.mesh.resolution=48", "evaluation.mass_samples=16384"]
     metrics = train(compose_cfg(overrides + QUIET_CPU), out_dir=tmp_path / "run")

@@ -53,6 +53,7 @@ class AmbientSamples(IterableDataset):
         if self.pool is not None:
             for _, gen in step_generators(self.seed, self.rank, self.start_step):
                 yield pool_batch(self.pool, self.num_samples, gen)
+            return
         uniform = self.sampling.get("kind", "uniform") == "uniform"
         sampler = None if uniform else AmbientSampler(self.dim, seed=self.seed, **self.sampling)
         for _, gen in step_generators(self.seed, self.rank, self.start_step):
@@ -94,8 +95,7 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
     ):
         super().__init__()
         self.sampling = sampling_options(sampling)
-        if num_samples <= 0:
-            raise ConfigError(f"data.num_samples={num_samples} must be a positive integer.")
+        positive_int("data.num_samples", num_samples)
         if curve_vertices < 3:
             raise ConfigError(f"data.curve_vertices={curve_vertices} must be at least 3.")
         if num_workers < 0:

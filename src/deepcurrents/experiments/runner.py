@@ -115,7 +115,7 @@ def build(cfg: DictConfig):
 
 def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None:
     """Trains and evaluates one run into ``out_dir`` (default: the run directory); returns its metrics
-    (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (deepcurrents.experiments.tables).
+    (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (:func:`run_suite`).
 
     Before training: the inputs are checked (one sentence on a bad one), the run directory must be writable
     with room for the checkpoints and must not be in use by another run (a lock file, experiments.run_dir),
