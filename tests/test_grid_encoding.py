@@ -1,0 +1,73 @@
+"""The multiresolution grid encoding: exact values at grid vertices, ∇_x by finite differences, and the double
+backward the mass loss needs (∂/∂table of a function of ∇_x features) by gradcheck, dense and hashed levels."""
+
+import pytest
+import torch
+
+from deepcurrents.errors import ConfigError
+from deepcurrents.nn.grid_encoding import MultiresGrid
+
+
+def grid(table_size: int = 1 << 18) -> MultiresGrid:
+    return MultiresGrid(3, levels=3, base_resolution=2, finest_resolution=7, features=2, table_size=table_size,
+                        init_scale=1.0, seed=0).double()
+
+
+def test_resolutions_grow_geometrically_and_big_levels_are_hashed():
+    g = grid(table_size=50)
+    assert g.resolutions.tolist() == [2, 3, 7]
+    assert g.hashed.tolist() == [False, True, True]      # 27 vertices fit in 50; 64 and 512 do not
+    assert g.table.shape == (27 + 50 + 50, 2)
+    assert g.out_dim == 6
+
+
+def test_value_at_a_grid_vertex_is_that_vertex_row():
+    g = grid()
+    # the vertex (i, j, k) = (1, 0, 2) of the coarsest level (resolution 2) sits at x = -1 + 2·(i, j, k)/2
+    x = torch.tensor([[0.0, -1.0, 1.0]], dtype=torch.float64)
+    row = 1 + 3 * (0 + 3 * 2)                             # row-major with x fastest: i + 3(j + 3k)
+    assert torch.allclose(g(x)[0, :2], g.table[row])
+
+
+def test_linear_along_an_edge_between_vertices():
+    g = grid()
+    a = torch.tensor([[0.0, -1.0, 1.0]], dtype=torch.float64)
+    b = torch.tensor([[1.0, -1.0, 1.0]], dtype=torch.float64)   # the next vertex along x on level 0
+    mid = g((a + b) / 2)[0, :2]
+    assert torch.allclose(mid, (g(a)[0, :2] + g(b)[0, :2]) / 2)
+
+
+@pytest.mark.parametrize("table_size", [1 << 18, 50])
+def test_input_gradient_matches_finite_differences(table_size):
+    g = grid(table_size)
+    x = torch.rand(6, 3, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 1.8 - 0.9
+    jac = torch.autograd.functional.jacobian(g, x)        # (6, 6, 6, 3)
+    h = 1e-6
+    for d in range(3):
+        e = torch.zeros_like(x)
+        e[:, d] = h
+        fd = (g(x + e) - g(x - e)) / (2 * h)
+        analytic = torch.stack([jac[i, :, i, d] for i in range(len(x))])
+        assert torch.allclose(fd, analytic, atol=1e-7)
+
+
+@pytest.mark.parametrize("table_size", [1 << 18, 50])
+def test_double_backward_through_the_input_gradient(table_size):
+    g = grid(table_size)
+    x = torch.rand(5, 3, generator=torch.Generator().manual_seed(2), dtype=torch.float64) * 1.8 - 0.9
+    mix = torch.arange(1.0, 7.0, dtype=torch.float64)
+
+    def grad_norm(table):
+        xg = x.clone().requires_grad_(True)
+        out = torch.func.functional_call(g, {"table": table}, (xg,))
+        (gx,) = torch.autograd.grad((out * mix).sum(), xg, create_graph=True)
+        return gx.norm(dim=-1)
+
+    assert torch.autograd.gradcheck(grad_norm, (g.table.detach().clone().requires_grad_(True),))
+
+
+def test_impossible_sizes_are_refused_in_one_sentence():
+    with pytest.raises(ConfigError, match="finest_resolution"):
+        MultiresGrid(3, base_resolution=16, finest_resolution=8)
+    with pytest.raises(ConfigError, match="levels"):
+        MultiresGrid(3, levels=0)
