@@ -1,7 +1,15 @@
 """One training step of the paper network (4096 samples, trefoil): time, matmul FLOPs, and the achieved
 fraction of this machine's own fp32 matrix-multiply rate, measured in the same run.
 
-    python benchmarks/train_step.py [--samples 4096] [--repeats 10] [--device cpu|cuda]
+    python benchmarks/train_step.py [--samples 4096] [--repeats 10] [--device cpu|cuda] [--threads T]
+                                    [--net paper|cpu] [--skip-memory] [--no-keep-freed-memory]
+
+Three ways of computing ω = ∇f + α and the loss's gradient, timed interleaved so that all see the same machine
+state: ``closed_form`` (the default of NeuralCurrent: nn/field_gradient.py, one pass with a hand-written
+backward), ``features`` (autograd through the MLP, the Fourier features' Jacobian in closed form: the previous
+default) and ``autograd`` (plain double-backward autograd through sin/cos, the authors' way). ``--net cpu`` times
+the network of ``preset=cpu`` (256 frequencies, 3×128) instead. Like a training run, the process first lets
+glibc reuse freed memory (experiments.runner.keep_freed_memory; ``--no-keep-freed-memory`` to measure without).
 
 Also measures peak memory of the 2^20-sample mass evaluation. Prints a table and saves JSON under
 benchmarks/results/.
@@ -11,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import resource
 import statistics
@@ -21,6 +30,7 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from deepcurrents.eval.metrics import mass_estimate
+from deepcurrents.experiments.runner import keep_freed_memory
 from deepcurrents.geometry import trefoil
 from deepcurrents.losses import current_loss
 from deepcurrents.nn import NeuralCurrent
@@ -74,10 +84,18 @@ def autograd_omega(model, x):
     return grad + model.alpha(x.detach())
 
 
-def make_step(model, opt, samples, device, variant="ours"):
+NETS = {"paper": {}, "cpu": {"num_frequencies": 256, "width": 128, "depth": 3}}
+VARIANTS = ("closed_form", "features", "autograd")
+
+
+def make_step(model, opt, samples, device, variant="closed_form"):
     def step():
         x = torch.rand(samples, 3, device=device) * 2 - 1
-        omega = model(x, create_graph=True)[1] if variant == "ours" else autograd_omega(model, x)
+        if variant == "autograd":
+            omega = autograd_omega(model, x)
+        else:
+            model.gradient = "closed_form" if variant == "closed_form" else "autograd"
+            omega = model(x, create_graph=True)[1]
         loss = current_loss(omega)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -91,21 +109,28 @@ def main():
     ap.add_argument("--samples", type=int, default=4096)
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's own choice)")
+    ap.add_argument("--net", choices=sorted(NETS), default="paper")
     ap.add_argument("--skip-memory", action="store_true")
+    ap.add_argument("--no-keep-freed-memory", action="store_true")
     args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    kept = False if args.no_keep_freed_memory else keep_freed_memory()
     device = torch.device(args.device)
     torch.manual_seed(0)
-    model = NeuralCurrent(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()]).to(device)
+    model = NeuralCurrent(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()],
+                          **NETS[args.net]).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=5e-4)
-    steps = {v: make_step(model, opt, args.samples, device, v) for v in ("ours", "autograd")}
+    steps = {v: make_step(model, opt, args.samples, device, v) for v in VARIANTS}
 
-    flops = count_flops(steps["ours"])
-    flops_ref = count_flops(steps["autograd"])
+    flops = {v: count_flops(step) for v, step in steps.items()}
     for step in steps.values():
         step()
     # interleave the variants and GEMM-rate timings so that all see the same machine state
     times: dict[str, list[float]] = {v: [] for v in steps}
     rates = []
+    load_before = os.getloadavg()[0]
     for _ in range(args.repeats):
         rates.append(matmul_rate(device, repeats=3))
         for name, step in steps.items():
@@ -114,21 +139,23 @@ def main():
             step()
             sync(device)
             times[name].append(time.perf_counter() - t)
-    step_s = statistics.median(times["ours"])
-    ref_s = statistics.median(times["autograd"])
     rate = statistics.median(rates)
-    achieved = flops / step_s
+    median = {v: statistics.median(times[v]) for v in steps}
     result = {
         "device": str(device), "machine": platform.processor() or platform.machine(),
-        "threads": torch.get_num_threads(), "samples": args.samples,
-        "step_ms_median": 1e3 * step_s, "step_ms_min": 1e3 * min(times["ours"]),
-        "autograd_step_ms_median": 1e3 * ref_s, "speedup_vs_autograd": ref_s / step_s,
-        "step_gflop": flops / 1e9, "autograd_step_gflop": flops_ref / 1e9,
-        "achieved_gflops": achieved / 1e9, "gemm_rate_gflops_median": rate / 1e9,
-        "gemm_rate_gflops_best": max(rates) / 1e9,
-        "fraction_of_gemm_rate": achieved / rate,
-        "autograd_fraction_of_gemm_rate": flops_ref / ref_s / rate,
+        "threads": torch.get_num_threads(), "samples": args.samples, "net": args.net,
+        "keep_freed_memory": kept, "load_average_before": load_before, "load_average_after": os.getloadavg()[0],
+        "step_ms_median": 1e3 * median["closed_form"], "step_ms_min": 1e3 * min(times["closed_form"]),
+        "step_gflop": flops["closed_form"] / 1e9,
+        "achieved_gflops": flops["closed_form"] / median["closed_form"] / 1e9,
+        "gemm_rate_gflops_median": rate / 1e9, "gemm_rate_gflops_best": max(rates) / 1e9,
+        "fraction_of_gemm_rate": flops["closed_form"] / median["closed_form"] / rate,
     }
+    for v in VARIANTS[1:]:
+        result.update({f"{v}_step_ms_median": 1e3 * median[v], f"{v}_step_gflop": flops[v] / 1e9,
+                       f"speedup_vs_{v}": median[v] / median["closed_form"],
+                       f"{v}_fraction_of_gemm_rate": flops[v] / median[v] / rate})
+    model.gradient = "closed_form"
     if not args.skip_memory:
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats()
@@ -145,7 +172,8 @@ def main():
         print(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}")
     out = Path(__file__).parent / "results"
     out.mkdir(exist_ok=True)
-    (out / f"train_step_{device.type}.json").write_text(json.dumps(result, indent=2))
+    suffix = "" if args.net == "paper" else f"_{args.net}"
+    (out / f"train_step_{device.type}{suffix}.json").write_text(json.dumps(result, indent=2))
 
 
 if __name__ == "__main__":

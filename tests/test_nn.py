@@ -124,10 +124,13 @@ def test_circle_mass_bound_of_the_exact_current():
     assert np.isclose(mass_to_area(2 * math.pi * 1e-3 * 1.0 / 4.0, 2, 1e-3), 1.0)
 
 
-def test_closed_form_fourier_jacobian_gives_autograds_weight_gradients():
-    """The training gradient (through ∇f) equals plain double-backward autograd through sin/cos."""
+@pytest.mark.parametrize("gradient", ["closed_form", "autograd"])
+def test_closed_form_fourier_jacobian_gives_autograds_weight_gradients(gradient):
+    """The training gradient (through ∇f) equals plain double-backward autograd through sin/cos, for both ways
+    NeuralCurrent computes it (the hand-written pass and autograd to the features)."""
     torch.manual_seed(1)
     model = paper_current(num_frequencies=32, width=16, depth=2).double()
+    model.gradient = gradient
     x = torch.rand(64, 3, dtype=torch.float64) * 2 - 1
     _, omega = model(x, create_graph=True)
     fast = torch.autograd.grad(current_loss(omega), list(model.mlp.parameters())[:-1])
@@ -136,3 +139,86 @@ def test_closed_form_fourier_jacobian_gives_autograds_weight_gradients():
     ref = torch.autograd.grad(current_loss(grad + model.alpha(x)), list(model.mlp.parameters())[:-1])
     for a, b in zip(fast, ref, strict=True):
         torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+
+
+def _plain_autograd(model, x):
+    """f and ∇f by autograd through the whole network, sin and cos included (the reference)."""
+    xr = x.clone().requires_grad_(True)
+    f = model.f(xr)
+    (grad,) = torch.autograd.grad(f.sum(), xr, create_graph=True)
+    return f, grad
+
+
+def _relative_error(a, b):
+    a = torch.zeros(()) if a is None else a  # autograd's None (no path) is a zero gradient
+    b = torch.zeros(()) if b is None else b
+    a, b = a.detach(), b.detach()
+    return float((a - b).abs().max() / b.abs().max().clamp_min(1e-300)) if b.abs().max() > 0 else float(a.abs().max())
+
+
+@pytest.mark.parametrize("activation", ["softplus", "relu"])
+@pytest.mark.parametrize("rff", [True, False])
+@pytest.mark.parametrize("dim", [3, 2])
+def test_hand_written_gradient_network_matches_autograd(activation, rff, dim):
+    """nn.field_gradient against autograd in float64: f, ∇f and every parameter's gradient of a loss that uses
+    both (the current loss sees ∇f only; reconstruction's surface term sees f), to 1e-10 relative."""
+    from deepcurrents.nn.field_gradient import closed_form_supported, field_and_gradient
+
+    torch.manual_seed(3)
+    if dim == 3:
+        model = paper_current(num_frequencies=16, width=12, depth=3, activation=activation, rff=rff)
+    else:
+        model = NeuralCurrent(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+                              num_frequencies=16, width=12, depth=3, activation=activation, rff=rff,
+                              zero_init_output=False)
+    model = model.double()
+    assert closed_form_supported(model.mlp, model.encoding)
+    x = torch.rand(50, dim, dtype=torch.float64) * 2 - 1
+    f, grad = field_and_gradient(model.mlp, model.encoding, x)
+    f_ref, grad_ref = _plain_autograd(model, x)
+    assert torch.equal(f, f_ref.detach())  # the same operations: f bit for bit
+    assert _relative_error(grad, grad_ref) <= 1e-10
+    weights = torch.rand(50, dtype=torch.float64)
+    params = list(model.mlp.parameters())
+    for with_f in (False, True):
+        def loss(f, grad, with_f=with_f):
+            return current_loss(grad) + (weights * f).mean() if with_f else current_loss(grad)
+        ours = torch.autograd.grad(loss(f, grad), params, retain_graph=True, allow_unused=True)
+        ref = torch.autograd.grad(loss(f_ref, grad_ref), params, retain_graph=True, allow_unused=True)
+        for name, a, b in zip([n for n, _ in model.mlp.named_parameters()], ours, ref, strict=True):
+            assert _relative_error(a, b) <= 1e-10, (name, with_f)
+        assert (ours[-1] is None) == (not with_f)  # the output's constant only matters through f
+
+
+def test_hand_written_gradient_network_passes_gradcheck():
+    """The hand-written backward against finite differences of its own forward (torch.autograd.gradcheck),
+    with upstream gradients on both f and ∇f, including softplus's linear range above its threshold."""
+    from deepcurrents.nn.field_gradient import _FieldGradient
+
+    torch.manual_seed(4)
+    model = paper_current(num_frequencies=4, width=5, depth=2).double()
+    with torch.no_grad():
+        model.mlp.net[2].bias[:2] = 25.0  # two units above softplus's threshold 20: σ' = 1, σ'' = 0 there
+    x = torch.rand(7, 3, dtype=torch.float64) * 2 - 1
+    params = tuple(p.detach().clone().requires_grad_(True) for p in model.mlp.parameters())
+
+    def run(*params):
+        return _FieldGradient.apply(x, model.encoding.frequencies, ("softplus", 1.0, 20.0), True, *params)
+
+    assert torch.autograd.gradcheck(run, params, eps=1e-6, atol=1e-8, rtol=1e-6)
+
+
+def test_hand_written_gradient_network_is_the_default_and_detaches_for_evaluation():
+    model = paper_current(num_frequencies=16, width=8, depth=2)
+    assert model.gradient == "closed_form"
+    x = torch.rand(30, 3) * 2 - 1
+    f, omega = model(x, create_graph=False)
+    assert not f.requires_grad and not omega.requires_grad
+    with torch.no_grad():
+        f2, omega2 = model(x)
+    torch.testing.assert_close(f, f2, rtol=0, atol=0)
+    torch.testing.assert_close(omega, omega2, rtol=0, atol=0)
+    torch.testing.assert_close(f, model.f(x), rtol=0, atol=0)  # the same f, bit for bit
+    model.gradient = "autograd"
+    f3, omega3 = model(x, create_graph=False)
+    torch.testing.assert_close(omega, omega3, rtol=1e-5, atol=1e-6)  # float32: equal up to rounding

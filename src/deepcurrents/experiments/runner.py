@@ -17,8 +17,10 @@ The command ``python train.py …`` (``deepcurrents.cli.train``) is a thin wrapp
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
+import sys
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -44,6 +46,24 @@ from deepcurrents.models.current_module import boundary_spec
 from deepcurrents.models.loading import check_resumable
 
 log = logging.getLogger("deepcurrents")
+
+# glibc's malloc returns every block of 32 MB or more to the system when it is freed, so each training step of the
+# paper network (4096 samples × 2048 features = 32 MB per feature array) page-faulted its arrays back in: 25,000
+# faults and about 50 ms of system time per step on 2 CPU cores. Blocks below this size are reused from the heap.
+MMAP_THRESHOLD = 256 << 20
+
+
+def keep_freed_memory(threshold: int = MMAP_THRESHOLD) -> bool:
+    """Lets glibc reuse freed blocks below ``threshold`` bytes instead of unmapping them (``mallopt``); the heap
+    above twice that is still given back. Linux with glibc only; elsewhere nothing changes. → whether it applied."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:  # another C library (musl)
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3
+    return bool(libc.mallopt(m_mmap_threshold, threshold)) and bool(libc.mallopt(m_trim_threshold, 2 * threshold))
 
 
 def instantiate(node: DictConfig, **kwargs):
@@ -133,6 +153,7 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
 
 def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     validate_config(cfg)
+    keep_freed_memory()
     L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
     datamodule, module = build(cfg)
     resume = resume_path(cfg.get("ckpt_path"), out_dir)

@@ -9,6 +9,7 @@ from torch import nn
 
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import biot_savart, biot_savart_2d
+from deepcurrents.nn.field_gradient import closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
 
@@ -26,7 +27,11 @@ class NeuralCurrent(nn.Module):
     The boundary is kept as buffers, so it travels with the module's device and its state_dict.
     ``zero_init_output`` zeroes the last layer's weights (f ≡ const at the start; the authors' code uses
     PyTorch's default initialisation, ``zero_init_output=False``).
+    ``gradient``: how ``forward`` gets ∇f: "closed_form" (``nn.field_gradient``: one pass with a hand-written
+    backward, the default) or "autograd" (autograd through the MLP, the reference); the same numbers.
     """
+
+    gradient: str = "closed_form"
 
     def __init__(
         self,
@@ -89,10 +94,15 @@ class NeuralCurrent(nn.Module):
         """(f, ω) at points x: (N, d) → ((N,), (N, d)). ``create_graph`` for training (double backward).
         ``alpha`` (N, d): the unscaled α_Γ(x) if already known (a sample pool), else computed here.
 
-        ∇f is taken by autograd through the MLP to its input features, then through the Fourier features
-        by their closed-form Jacobian (same numbers as autograd all the way, fewer elementwise passes).
+        ∇f and its training backward are written out by hand (``nn.field_gradient``); with
+        ``gradient="autograd"``, ∇f is taken by autograd through the MLP to its input features, then through the
+        Fourier features by their closed-form Jacobian. Same numbers either way (tests/test_nn.py).
         """
         x = x.detach()
+        if self.gradient == "closed_form" and closed_form_supported(self.mlp, self.encoding):
+            with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
+                f, grad_f = field_and_gradient(self.mlp, self.encoding, x)
+            return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
         with torch.enable_grad():
             if self.encoding.enabled:
                 sin, cos = self.encoding.sin_cos(x)
