@@ -222,3 +222,32 @@ def test_hand_written_gradient_network_is_the_default_and_detaches_for_evaluatio
     model.gradient = "autograd"
     f3, omega3 = model(x, create_graph=False)
     torch.testing.assert_close(omega, omega3, rtol=1e-5, atol=1e-6)  # float32: equal up to rounding
+
+
+@pytest.mark.parametrize("activation", ["softplus", "relu"])
+def test_hand_written_gradient_network_with_a_code_per_shape(activation):
+    """A decoder conditioned on a code per shape (the family's): the code's columns of the first layer folded
+    into a bias per shape, against autograd through [code | φ(x)] in float64, gradients reaching the codes."""
+    from deepcurrents.nn.field_gradient import closed_form_supported, field_and_gradient
+
+    torch.manual_seed(5)
+    shapes, n, code_dim = 3, 20, 4
+    encoding = FourierFeatures(3, num_frequencies=8, seed=0).double()
+    mlp = FieldMLP(code_dim + encoding.out_dim, 10, 2, activation).double()
+    assert closed_form_supported(mlp, encoding, code_dim) and not closed_form_supported(mlp, encoding)
+    code = torch.randn(shapes, code_dim, dtype=torch.float64, requires_grad=True)
+    x = torch.rand(shapes, n, 3, dtype=torch.float64) * 2 - 1
+    first = mlp.net[0]
+    bias = torch.nn.functional.linear(code, first.weight[:, :code_dim], first.bias)
+    f, grad = field_and_gradient(mlp, encoding, x, first_layer=(first.weight[:, code_dim:], bias))
+    xr = x.clone().requires_grad_(True)
+    f_ref = mlp(torch.cat([code[:, None].expand(-1, n, -1), encoding(xr)], -1)).squeeze(-1)
+    (grad_ref,) = torch.autograd.grad(f_ref.sum(), xr, create_graph=True)
+    assert f.shape == (shapes, n) and grad.shape == (shapes, n, 3)
+    assert _relative_error(f, f_ref) <= 1e-12 and _relative_error(grad, grad_ref) <= 1e-10
+    weights = torch.rand(shapes, n, dtype=torch.float64)
+    wrt = [code, *mlp.parameters()]
+    ours = torch.autograd.grad(current_loss(grad.reshape(-1, 3)) + (weights * f).mean(), wrt)
+    ref = torch.autograd.grad(current_loss(grad_ref.reshape(-1, 3)) + (weights * f_ref).mean(), wrt)
+    for a, b in zip(ours, ref, strict=True):
+        assert _relative_error(a, b) <= 1e-10

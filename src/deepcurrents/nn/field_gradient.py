@@ -40,25 +40,32 @@ from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
 
 
-def closed_form_supported(mlp: nn.Module, encoding: nn.Module) -> bool:
+def closed_form_supported(mlp: nn.Module, encoding: nn.Module, code_dim: int = 0) -> bool:
     """Whether ``field_and_gradient`` can run ``mlp`` on ``encoding``: a ``FieldMLP`` (Linear/activation pairs,
-    Softplus or ReLU, then a Linear with one output) on ``FourierFeatures`` (enabled or the identity)."""
+    Softplus or ReLU, then a Linear with one output) on ``FourierFeatures`` (enabled or the identity), after
+    ``code_dim`` code inputs (a conditioned decoder, ``first_layer``)."""
     if not isinstance(mlp, FieldMLP) or not isinstance(encoding, FourierFeatures):
         return False
     layers = list(mlp.net)
     if len(layers) < 3 or len(layers) % 2 == 0 or layers[-1].out_features != 1:
         return False
-    if layers[0].in_features != encoding.out_dim:
+    if layers[0].in_features != code_dim + encoding.out_dim:
         return False
     return all(isinstance(lin, nn.Linear) and isinstance(act, (nn.Softplus, nn.ReLU))
                for lin, act in zip(layers[:-1:2], layers[1::2], strict=True))
 
 
-def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor,
+                       first_layer: tuple[torch.Tensor, torch.Tensor] | None = None,
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
     """f = mlp(encoding(x)) and ∇_x f, differentiable in the MLP's parameters (not in x).
 
     x: (N, d) → (f (N,), ∇f (N, d)). The same numbers as autograd (tests/test_nn.py: float64, relative
     error ≤ 1e-10 on f, ∇f and every parameter gradient); f is bit-identical to ``mlp(encoding(x))``.
+
+    ``first_layer`` = (W_φ (width, F), c (S, width)): a decoder conditioned on a code per shape, whose first
+    layer's code columns and bias are folded into c = W_code·code + b (computed by the caller, so its gradient
+    reaches the code by autograd); x is then (S, N, d) → ((S, N), (S, N, d)), z_1 = φ W_φᵀ + c per shape.
     """
     layers = list(mlp.net)
     act = layers[1]
@@ -69,10 +76,14 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     params = []
     for lin in layers[::2]:
         params += [lin.weight, lin.bias]
+    if first_layer is not None:
+        params[:2] = first_layer
     freqs = encoding.frequencies if encoding.enabled else None
     # inside no_grad the Function still reports its inputs as needing gradients: decide here
     keep = torch.is_grad_enabled() and any(p.requires_grad for p in params)
-    return _FieldGradient.apply(x.detach(), freqs, spec, keep, *params)
+    points = x.detach().reshape(-1, x.shape[-1])
+    f, grad = _FieldGradient.apply(points, freqs, spec, keep, *params)
+    return f.reshape(x.shape[:-1]), grad.reshape(x.shape)
 
 
 def _derivative(z: torch.Tensor, spec: tuple[str, float, float]) -> torch.Tensor:
@@ -102,7 +113,8 @@ def _signed_frequencies(freqs: torch.Tensor) -> torch.Tensor:
 
 class _FieldGradient(torch.autograd.Function):
     """(x, B or None, spec, keep, W_1, b_1, …, W_L, b_L, w_o, b_o) ↦ (f (N,), ∇f (N, d)); see the module doc.
-    ``keep``: a backward will follow (training), so keep what it needs."""
+    ``keep``: a backward will follow (training), so keep what it needs. b_1 may be (S, W): one bias per
+    group of N / S consecutive rows (a conditioned decoder)."""
 
     @staticmethod
     def forward(ctx, x, freqs, spec, keep, *params):
@@ -120,7 +132,10 @@ class _FieldGradient(torch.autograd.Function):
             a = x
         inputs, derivs = [], []
         for w, b in zip(weights[:-1], biases[:-1], strict=True):
-            z = torch.addmm(b, a, w.T)
+            if b.dim() == 2:  # one bias per shape, as FamilyCurrent.decode adds it (the same rounding)
+                z = (a @ w.T).view(b.shape[0], -1, b.shape[1]).add_(b[:, None]).view(a.shape[0], -1)
+            else:
+                z = torch.addmm(b, a, w.T)
             inputs.append(a)
             derivs.append(_derivative(z, spec))
             a = _activation(z, spec)
@@ -200,7 +215,8 @@ class _FieldGradient(torch.autograd.Function):
             if zb is None:  # ReLU without f̄: ω does not depend on this layer's pre-activation
                 b_bar[layer] = torch.zeros_like(biases[layer])
                 continue
-            b_bar[layer] = zb.sum(0)
+            b_bar[layer] = zb.sum(0) if biases[layer].dim() == 1 else zb.view(*biases[layer].shape[:1], -1,
+                                                                                   zb.shape[1]).sum(1)
             # out of place: torch.utils.flop_counter does not count addmm_ (the copy is one (W, F) array)
             w_z = zb.T @ inputs[layer] if w_bar[layer] is None else torch.addmm(w_bar[layer], zb.T, inputs[layer])
             w_bar[layer] = w_z
