@@ -58,8 +58,9 @@ class GridModule(DeepCurrentsModule):
     """
 
     def __init__(self, boundary: dict, grid: dict, admm: dict, net: dict, optim: dict | None = None,
-                 rff: dict | None = None, evaluation: dict | None = None):
-        super().__init__(optim=None)  # ADMM has no learning rate: `optim` is accepted, unused
+                 rff: dict | None = None, evaluation: dict | None = None, grid_encoding: dict | None = None):
+        # ADMM has no learning rate and no network: `optim` and `grid_encoding` are accepted, unused
+        super().__init__(optim=None)
         self.save_hyperparameters()
         self.automatic_optimization = False
         self.evaluation = dict(evaluation or {})

@@ -23,9 +23,15 @@ from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_
 CHECKPOINT_KEY = "deepcurrents"
 
 
-def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``model.net`` (the MLP: width, depth, activation, alpha_scale, ...) and ``model.rff`` (the random
-    Fourier features: num_frequencies, sigma, enabled, seed) as the keyword arguments of ``NeuralCurrent``
+GRID_ENCODING_KEYS = {"levels", "base_resolution", "finest_resolution", "features", "table_size", "init_scale",
+                      "lr_factor"}
+
+
+def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None,
+                   grid_encoding: dict[str, Any] | None = None) -> dict[str, Any]:
+    """``model.net`` (the MLP: width, depth, activation, alpha_scale, ...), ``model.rff`` (the random
+    Fourier features: num_frequencies, sigma, enabled, seed) and ``model.grid_encoding`` (learned multiresolution
+    grid features, ``nn.MultiresGrid``; levels 0 = off) as the keyword arguments of ``NeuralCurrent``
     and ``FamilyCurrent``, checked: impossible sizes stop the run with one sentence naming the key."""
     rff = dict(rff or {})
     unknown = set(rff) - {"num_frequencies", "sigma", "enabled", "seed"}
@@ -41,6 +47,14 @@ def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None) -> di
         raise ConfigError(f"model.rff.sigma={kwargs['sigma']} must be positive.")
     if "alpha_scale" in kwargs and not float(kwargs["alpha_scale"]) > 0:
         raise ConfigError(f"model.net.alpha_scale={kwargs['alpha_scale']} must be positive.")
+    grid = dict(grid_encoding or {})
+    unknown = set(grid) - GRID_ENCODING_KEYS
+    if unknown:
+        raise ConfigError(f"model.grid_encoding has unknown keys {sorted(unknown)}; it takes "
+                          f"{', '.join(sorted(GRID_ENCODING_KEYS))}.")
+    grid.pop("lr_factor", None)  # an optimiser setting (CurrentModule.parameter_groups), not the network's
+    if int(grid.pop("levels", 0) or 0) > 0:
+        kwargs["grid"] = {"levels": int(grid_encoding["levels"]), **grid}
     return kwargs
 
 
@@ -75,7 +89,7 @@ class DeepCurrentsModule(L.LightningModule):
     def configure_optimizers(self):
         optim = self.hparams.optim
         betas = tuple(float(b) for b in optim.get("betas") or (0.9, 0.999))
-        opt = torch.optim.Adam(self.parameters(), lr=float(optim["lr"]), betas=betas)
+        opt = torch.optim.Adam(self.parameter_groups(float(optim["lr"])), lr=float(optim["lr"]), betas=betas)
         if optim.get("schedule", "step") == "cosine":  # the horizon is the budget (models.schedules)
             sched = BudgetCosine(opt, lambda: trainer_progress(self.trainer, self.global_step),
                                  float(optim.get("warmup", 0.0)), float(optim.get("min_factor", 0.0)))
@@ -83,6 +97,10 @@ class DeepCurrentsModule(L.LightningModule):
             sched = torch.optim.lr_scheduler.StepLR(opt, step_size=int(optim["step_size"]),
                                                     gamma=float(optim["gamma"]))
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    def parameter_groups(self, lr: float) -> list[dict]:
+        """Adam's parameter groups; one at ``lr`` unless a model kind trains some parameters at another rate."""
+        return [{"params": list(self.parameters())}]
 
     def check_finite(self, loss: torch.Tensor | float, hint: str = "try a lower model.optim.lr") -> None:
         value = float(loss.detach()) if isinstance(loss, torch.Tensor) else float(loss)

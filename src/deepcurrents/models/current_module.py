@@ -9,6 +9,7 @@ import numpy as np
 import torch
 import trimesh
 
+from deepcurrents.errors import ConfigError
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method
 from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_to_area
 from deepcurrents.eval.plots import plot_current_2d
@@ -67,21 +68,35 @@ class CurrentModule(DeepCurrentsModule):
         boundary: ``boundary_spec`` of Γ: {"loops": [...]} in 3D or {"poles", "signs"} in 2D.
         net: the MLP and ω's normalisation (width, depth, activation, alpha_scale, zero_init_output).
         rff: the random Fourier features (num_frequencies, sigma, enabled, seed).
+        grid_encoding: learned multiresolution grid features beside them (``nn.MultiresGrid``; levels 0: off).
         optim: {"lr", "step_size", "gamma"} — Adam with lr × gamma every step_size steps.
         evaluation: {"mass_samples", "mesh": {...extract_surface kwargs}, "curve": {...}}.
     """
 
     def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
-                 evaluation: dict | None = None):
+                 evaluation: dict | None = None, grid_encoding: dict | None = None):
         super().__init__(optim)
         self.save_hyperparameters()
         self.evaluation = dict(evaluation or {})
-        net = network_kwargs(net, rff)
+        net = network_kwargs(net, rff, grid_encoding)
+        self.grid_lr_factor = float((grid_encoding or {}).get("lr_factor", 1.0))
+        if not self.grid_lr_factor > 0:
+            raise ConfigError(f"model.grid_encoding.lr_factor={self.grid_lr_factor} must be positive.")
         if "loops" in boundary:
             self.current = NeuralCurrent(dim=3, loops=[torch.tensor(lp) for lp in boundary["loops"]], **net)
         else:
             self.current = NeuralCurrent(dim=2, poles=torch.tensor(boundary["poles"]),
                                          signs=torch.tensor(boundary["signs"]), **net)
+
+    def parameter_groups(self, lr: float) -> list[dict]:
+        """The grid table at ``grid_encoding.lr_factor`` × lr (a table entry is only trained by the few samples
+        in its cells, so it learns from fewer, sparser gradients than the MLP's weights)."""
+        grid = self.current.grid
+        if grid is None:
+            return super().parameter_groups(lr)
+        table = {id(p) for p in grid.parameters()}
+        rest = [p for p in self.parameters() if id(p) not in table]
+        return [{"params": rest}, {"params": list(grid.parameters()), "lr": lr * self.grid_lr_factor}]
 
     @property
     def dim(self) -> int:

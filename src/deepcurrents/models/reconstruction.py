@@ -107,8 +107,8 @@ class ReconstructionModule(CurrentModule):
 
     def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
                  evaluation: dict | None = None, target: dict | None = None, surface_weight: float = 1.0,
-                 surface_margin: float = 0.01):
-        super().__init__(boundary, net, optim, rff, evaluation)
+                 surface_margin: float = 0.01, grid_encoding: dict | None = None):
+        super().__init__(boundary, net, optim, rff, evaluation, grid_encoding)
         self.save_hyperparameters(ignore=["target"])  # the geometry lives in buffers, not in hparams
         if not surface_weight >= 0 or not surface_margin > 0:
             raise ConfigError("model.surface_weight must be ≥ 0 and model.surface_margin positive.")

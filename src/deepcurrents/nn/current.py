@@ -11,6 +11,7 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import biot_savart, biot_savart_2d
 from deepcurrents.nn.field_gradient import closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
+from deepcurrents.nn.grid_encoding import MultiresGrid
 from deepcurrents.nn.mlp import FieldMLP
 
 
@@ -29,6 +30,8 @@ class NeuralCurrent(nn.Module):
     PyTorch's default initialisation, ``zero_init_output=False``).
     ``gradient``: how ``forward`` gets ∇f: "closed_form" (``nn.field_gradient``: one pass with a hand-written
     backward, the default) or "autograd" (autograd through the MLP, the reference); the same numbers.
+    ``grid``: keyword arguments of ``MultiresGrid`` (levels, base_resolution, finest_resolution, features,
+    table_size, init_scale) for learned grid features beside the Fourier features (not in the paper); None: off.
     """
 
     gradient: str = "closed_form"
@@ -48,6 +51,7 @@ class NeuralCurrent(nn.Module):
         alpha_scale: float = 1e-3,
         rff_seed: int | None = None,
         zero_init_output: bool = True,
+        grid: dict | None = None,
     ):
         super().__init__()
         if dim not in (2, 3):
@@ -55,7 +59,8 @@ class NeuralCurrent(nn.Module):
         self.dim = dim
         self.alpha_scale = alpha_scale
         self.encoding = FourierFeatures(dim, num_frequencies, sigma, enabled=rff, seed=rff_seed)
-        self.mlp = FieldMLP(self.encoding.out_dim, width, depth, activation)
+        self.grid = MultiresGrid(dim, seed=rff_seed, **grid) if grid else None
+        self.mlp = FieldMLP(self.encoding.out_dim + (self.grid.out_dim if self.grid else 0), width, depth, activation)
         if zero_init_output:
             # f starts constant, so ω starts as alpha_scale·α (mass ≈ 2.4 for a circle of radius 0.6)
             # instead of as the random network's gradient, which is 15–40× larger than α: measured here,
@@ -79,7 +84,10 @@ class NeuralCurrent(nn.Module):
 
     def f(self, x: torch.Tensor) -> torch.Tensor:
         """The scalar field f_θ. (N, d) → (N,)."""
-        return self.mlp(self.encoding(x)).squeeze(-1)
+        features = self.encoding(x)
+        if self.grid is not None:
+            features = torch.cat([features, self.grid(x)], dim=-1)
+        return self.mlp(features).squeeze(-1)
 
     def alpha(self, x: torch.Tensor) -> torch.Tensor:
         """alpha_scale · α_Γ(x), closed form. (N, d) → (N, d)."""
@@ -104,16 +112,26 @@ class NeuralCurrent(nn.Module):
                 f, grad_f = field_and_gradient(self.mlp, self.encoding, x)
             return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
         with torch.enable_grad():
+            # autograd to the Fourier features (then their closed-form Jacobian), and to x itself for what
+            # reads x directly: the grid features, or the MLP when the Fourier features are off
+            needs_x = self.grid is not None or not self.encoding.enabled
+            x_in = x.detach().requires_grad_(True) if needs_x else x  # a separate leaf: sin/cos stay off its graph
+            parts, wrt = [], []
             if self.encoding.enabled:
                 sin, cos = self.encoding.sin_cos(x)
-                features = torch.cat([sin, cos], dim=-1).requires_grad_(True)
-                f = self.mlp(features).squeeze(-1)
-                grad_features = spatial_gradient(f, features, create_graph=create_graph)
-                grad_f = self.encoding.input_gradient(grad_features, sin, cos)
+                parts.append(torch.cat([sin, cos], dim=-1).requires_grad_(True))
+                wrt.append(parts[-1])
             else:
-                x_in = x.requires_grad_(True)
-                f = self.mlp(x_in).squeeze(-1)
-                grad_f = spatial_gradient(f, x_in, create_graph=create_graph)
+                parts.append(x_in)
+            if self.grid is not None:
+                parts.append(self.grid(x_in))
+            if needs_x:
+                wrt.append(x_in)
+            f = self.mlp(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]).squeeze(-1)
+            grads = torch.autograd.grad(f.sum(), wrt, create_graph=create_graph)
+            grad_f = grads[-1] if needs_x else 0.0
+            if self.encoding.enabled:
+                grad_f = grad_f + self.encoding.input_gradient(grads[0], sin, cos)
         if not create_graph:
             f, grad_f = f.detach(), grad_f.detach()
         return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
