@@ -2,7 +2,7 @@
 fraction of this machine's own fp32 matrix-multiply rate, measured in the same run.
 
     python benchmarks/train_step.py [--samples 4096] [--repeats 10] [--device cpu|cuda] [--threads T]
-                                    [--net paper|cpu] [--skip-memory] [--no-keep-freed-memory]
+                                    [--net paper|cpu] [--skip-memory] [--no-keep-freed-memory] [--cpu-time]
 
 Three ways of computing ω = ∇f + α and the loss's gradient, timed interleaved so that all see the same machine
 state: ``closed_form`` (the default of NeuralCurrent: nn/field_gradient.py, one pass with a hand-written
@@ -41,7 +41,7 @@ def sync(device):
         torch.cuda.synchronize()
 
 
-def matmul_rate(device, n=2048, repeats=10) -> float:
+def matmul_rate(device, n=2048, repeats=10, clock=time.perf_counter) -> float:
     """Best-of fp32 GEMM rate (FLOP/s) for an n×n×n product, the machine's practical peak."""
     a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
     for _ in range(2):
@@ -49,10 +49,10 @@ def matmul_rate(device, n=2048, repeats=10) -> float:
     sync(device)
     best = float("inf")
     for _ in range(repeats):
-        t = time.perf_counter()
+        t = clock()
         a @ b
         sync(device)
-        best = min(best, time.perf_counter() - t)
+        best = min(best, clock() - t)
     return 2 * n**3 / best
 
 
@@ -113,7 +113,11 @@ def main():
     ap.add_argument("--net", choices=sorted(NETS), default="paper")
     ap.add_argument("--skip-memory", action="store_true")
     ap.add_argument("--no-keep-freed-memory", action="store_true")
+    ap.add_argument("--cpu-time", action="store_true",
+                    help="time steps and GEMMs in this process's CPU seconds (with --threads 1: less sensitive to "
+                         "other jobs on a shared machine than wall-clock seconds)")
     args = ap.parse_args()
+    clock = time.process_time if args.cpu_time else time.perf_counter
     if args.threads:
         torch.set_num_threads(args.threads)
     kept = False if args.no_keep_freed_memory else keep_freed_memory()
@@ -132,18 +136,19 @@ def main():
     rates = []
     load_before = os.getloadavg()[0]
     for _ in range(args.repeats):
-        rates.append(matmul_rate(device, repeats=3))
+        rates.append(matmul_rate(device, repeats=3, clock=clock))
         for name, step in steps.items():
             sync(device)
-            t = time.perf_counter()
+            t = clock()
             step()
             sync(device)
-            times[name].append(time.perf_counter() - t)
+            times[name].append(clock() - t)
     rate = statistics.median(rates)
     median = {v: statistics.median(times[v]) for v in steps}
     result = {
         "device": str(device), "machine": platform.processor() or platform.machine(),
         "threads": torch.get_num_threads(), "samples": args.samples, "net": args.net,
+        "clock": "cpu" if args.cpu_time else "wall",
         "keep_freed_memory": kept, "load_average_before": load_before, "load_average_after": os.getloadavg()[0],
         "step_ms_median": 1e3 * median["closed_form"], "step_ms_min": 1e3 * min(times["closed_form"]),
         "step_gflop": flops["closed_form"] / 1e9,
