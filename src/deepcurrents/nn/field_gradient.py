@@ -82,7 +82,10 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     # inside no_grad the Function still reports its inputs as needing gradients: decide here
     keep = torch.is_grad_enabled() and any(p.requires_grad for p in params)
     points = x.detach().reshape(-1, x.shape[-1])
-    f, grad = _FieldGradient.apply(points, freqs, spec, keep, *params)
+    # in the parameters' precision even under autocast (mixed-precision training): the backward's products mix
+    # saved activations with the weights and need one dtype; the mass loss is sensitive to rounding anyway
+    with torch.autocast(points.device.type, enabled=False):
+        f, grad = _FieldGradient.apply(points, freqs, spec, keep, *params)
     return f.reshape(x.shape[:-1]), grad.reshape(x.shape)
 
 
