@@ -107,7 +107,8 @@ class NeuralCurrent(nn.Module):
         Fourier features by their closed-form Jacobian. Same numbers either way (tests/test_nn.py).
         """
         x = x.detach()
-        if self.gradient == "closed_form" and closed_form_supported(self.mlp, self.encoding):
+        # the hand-written pass covers the MLP on Fourier features; grid features go through autograd below
+        if self.gradient == "closed_form" and self.grid is None and closed_form_supported(self.mlp, self.encoding):
             with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
                 f, grad_f = field_and_gradient(self.mlp, self.encoding, x)
             return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
