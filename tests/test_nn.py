@@ -251,3 +251,32 @@ def test_hand_written_gradient_network_with_a_code_per_shape(activation):
     ref = torch.autograd.grad(current_loss(grad_ref.reshape(-1, 3)) + (weights * f_ref).mean(), wrt)
     for a, b in zip(ours, ref, strict=True):
         assert _relative_error(a, b) <= 1e-10
+
+
+def test_family_decoder_takes_the_hand_written_pass_with_the_same_numbers(monkeypatch):
+    """FamilyCurrent.forward through nn.field_gradient against its autograd path in float64: f, ω and the
+    gradients of every parameter (latent codes and boundary encoders included)."""
+    import deepcurrents.nn.family as family_module
+
+    torch.manual_seed(6)
+    fam = family_module.FamilyCurrent(num_shapes=3, num_loops=1, latent_dim=4, boundary_dim=4, num_frequencies=8,
+                                      width=8, depth=2, zero_init_output=False).double()
+    shapes, n = 2, 30
+    loops = torch.tensor(circle(0.5, n=12))[None, None].expand(shapes, 1, -1, -1).contiguous()
+    mask = torch.ones(shapes, 1, 12, dtype=torch.bool)
+    x = torch.rand(shapes, n, 3, dtype=torch.float64) * 2 - 1
+    weights = torch.rand(shapes, n, dtype=torch.float64)
+
+    def run():
+        code = fam.code(fam.latents(torch.arange(shapes)), loops, mask)
+        f, omega = fam(x, code, loops, mask)
+        grads = torch.autograd.grad(current_loss(omega.reshape(-1, 3)) + (weights * f).mean(), list(fam.parameters()))
+        return f.detach(), omega.detach(), grads
+
+    fast = run()
+    monkeypatch.setattr(family_module, "closed_form_supported", lambda *args, **kwargs: False)
+    ref = run()
+    assert torch.equal(fast[0], ref[0])
+    assert _relative_error(fast[1], ref[1]) <= 1e-12
+    for a, b in zip(fast[2], ref[2], strict=True):
+        assert _relative_error(a, b) <= 1e-10

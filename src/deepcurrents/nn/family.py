@@ -20,6 +20,7 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import biot_savart
 from deepcurrents.nn.current import NeuralCurrent, spatial_gradient
 from deepcurrents.nn.encoder import BoundaryEncoder
+from deepcurrents.nn.field_gradient import closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
 
@@ -124,6 +125,14 @@ class FamilyCurrent(nn.Module):
                 create_graph: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
         """(f, ω) at x (S, N, 3) for codes (S, code_dim) and padded loops → ((S, N), (S, N, 3))."""
         x = x.detach()
+        if closed_form_supported(self.mlp, self.encoding, self.code_dim):  # nn.field_gradient: the same numbers
+            with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
+                first, c = self.mlp.net[0], self.code_dim
+                bias = F.linear(code, first.weight[:, :c], first.bias)  # the code's part, once per shape (decode)
+                f, grad_f = field_and_gradient(self.mlp, self.encoding, x, first_layer=(first.weight[:, c:], bias))
+            with torch.no_grad():
+                alpha = self.alpha(x, unpad_loops(loops, mask))
+            return f, grad_f + alpha
         with torch.enable_grad():
             if self.encoding.enabled:  # ∇f through the Fourier features by their closed-form Jacobian
                 sin, cos = self.encoding.sin_cos(x)
