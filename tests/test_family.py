@@ -251,6 +251,24 @@ def test_datamodule_batches_and_model_kwargs(family_dir):
     assert dm.shard(1, 2).tolist() == [1] and dm.shard(0, 2).tolist() == [0, 2]
 
 
+def test_unaugmented_samples_are_reconstruction_samples_with_one_tree_per_mesh(family_dir):
+    """Without augmentation each mesh's AABB tree is built once per worker; the batches are the ones
+    ``reconstruction_sample`` (a new tree every call) draws from the same stream."""
+    from deepcurrents.data.targets import reconstruction_sample
+
+    dm = FamilyDataModule(str(family_dir), meshes_per_batch=2, num_samples=64, num_surface_samples=32,
+                          augment=False)
+    samples = dm.train_dataloader().dataset
+    mesh = dm.meshes[1]
+    for _ in range(2):
+        item = samples.sample_mesh(1, torch.Generator().manual_seed(7))
+        expected = reconstruction_sample(mesh.vertices, mesh.faces, mesh.loop_points(), 64, 32,
+                                         torch.Generator().manual_seed(7))
+        for key, value in expected.items():
+            torch.testing.assert_close(item[key], value, rtol=0, atol=0)
+    assert list(samples.targets) == [1]
+
+
 def test_boundary_interpolation_is_vertexwise_and_resamples_unequal_loops():
     a, b = hopf_link(8)[0], hopf_link(8)[1]
     np.testing.assert_allclose(interpolate_loops([a], [b], 0.25)[0], 0.75 * a + 0.25 * b)
@@ -269,6 +287,7 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         assert cfg.model.rff.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.surface_weight == 1
         cpu = compose_cfg([f"experiment={name}", "preset=cpu", "trainer=ddp_cpu"])
         assert cpu.data.max_meshes == 4 and cpu.trainer.max_steps == 1500 and cpu.model.net.width == 128
+        assert not cpu.data.augment  # README "On a CPU": augmented hands stayed blobs in the CPU's steps
         assert cpu.trainer.strategy == "ddp" and cpu.trainer.devices == 2
 
 

@@ -33,7 +33,7 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
-from deepcurrents.data.targets import mesh_boundary_loops, reconstruction_sample
+from deepcurrents.data.targets import MeshTarget, mesh_boundary_loops, reconstruction_sample, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
@@ -204,15 +204,24 @@ class FamilySamples(IterableDataset):
         self.num_surface_samples, self.ranges, self.augment = num_surface_samples, ranges, augment
         self.boundary_sigma, self.boundary_weighting = boundary_sigma, boundary_weighting
         self.seed, self.rank, self.start_step = seed, rank, start_step
+        self.targets: dict[int, MeshTarget] = {}  # unaugmented meshes' targets (AABB trees), built in each worker
 
     def sample_mesh(self, index: int, generator: torch.Generator) -> dict:
         """One mesh, augmented and sampled."""
         mesh = self.meshes[index]
-        v = augment_mesh(mesh.skinning, mesh.loops, generator, self.ranges)[0] if self.augment else mesh.vertices
-        loops = mesh.loop_points(v)
-        item = reconstruction_sample(v, mesh.faces, loops, self.num_samples, self.num_surface_samples, generator,
-                                     boundary_sigma=self.boundary_sigma,
-                                     boundary_weighting=self.boundary_weighting, surface_loss=True)
+        kwargs = {"boundary_sigma": self.boundary_sigma, "boundary_weighting": self.boundary_weighting,
+                  "surface_loss": True}
+        if self.augment:  # a new mesh every step: its AABB tree is built and dropped
+            v = augment_mesh(mesh.skinning, mesh.loops, generator, self.ranges)[0]
+            loops = mesh.loop_points(v)
+            item = reconstruction_sample(v, mesh.faces, loops, self.num_samples, self.num_surface_samples,
+                                         generator, **kwargs)
+        else:  # the same mesh every step: its tree is built once (same samples as reconstruction_sample)
+            loops = mesh.loop_points()
+            if index not in self.targets:
+                self.targets[index] = MeshTarget(mesh.vertices, mesh.faces, loops)
+            item = target_sample(self.targets[index], self.num_samples, self.num_surface_samples, generator,
+                                 **kwargs)
         item["index"], item["loops"] = index, loops
         return item
 
