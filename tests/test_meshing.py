@@ -7,7 +7,9 @@ import pytest
 import torch
 import trimesh
 
+from deepcurrents.data.targets import mesh_boundary_loops
 from deepcurrents.eval.meshing import METHODS, MeshMethod, clip_by_field, extract_surface, zip_to_loop
+from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
 from deepcurrents.eval.metrics import boundary_error
 from deepcurrents.geometry import circle
 from deepcurrents.geometry.topology import border_loops
@@ -125,3 +127,184 @@ def test_a_new_meshing_method_is_one_class(monkeypatch):
     assert (mesh.face_normals @ n > 0.999).all()  # oriented along the current
     with pytest.raises(ValueError, match="method='nope'"):
         extract_surface(disk, method="nope")
+
+
+# --- a cap across the opening: two cut border loops along one loop of Γ (reconstructions' wrists and necks) ---
+
+def revolve(profile, n=128):
+    """Surface of revolution about z of a profile (K, 2) of (ρ, z); a profile point on the axis (ρ = 0) is one
+    vertex. Faces are oriented with normals ρ̂·(dz/ds) − ẑ·(dρ/ds) (outward for a profile climbing at ρ > 0).
+    → vertices (V, 3), faces (F, 3)."""
+    t = 2 * np.pi * np.arange(n) / n
+    index, verts = [], []
+    for rho, z in profile:
+        if rho == 0:
+            index.append(np.full(n, len(verts)))
+            verts.append([0.0, 0.0, z])
+        else:
+            index.append(len(verts) + np.arange(n))
+            verts += np.stack([rho * np.cos(t), rho * np.sin(t), np.full(n, z)], 1).tolist()
+    faces = []
+    for lo, hi in zip(index[:-1], index[1:], strict=True):
+        lo1, hi1 = np.roll(lo, -1), np.roll(hi, -1)
+        faces += [np.stack([lo, lo1, hi1], 1), np.stack([lo, hi1, hi], 1)]
+    faces = np.concatenate(faces)
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
+    return np.asarray(verts), faces
+
+
+def cup_profile(radius, height, k=24):
+    """A cup open at z = 0: the wall ρ = R up to z = h, then a hemisphere to the pole. (K, 2)."""
+    wall = np.stack([np.full(k, radius), np.linspace(0, height, k)], 1)
+    phi = np.linspace(0, np.pi / 2, k)[1:]
+    dome = np.stack([radius * np.cos(phi), height + radius * np.sin(phi)], 1)
+    dome[-1, 0] = 0.0
+    return np.concatenate([wall, dome])
+
+
+def merge(*meshes):
+    """One (vertices, faces) of several."""
+    verts, faces, base = [], [], 0
+    for v, f in meshes:
+        verts.append(v)
+        faces.append(f + base)
+        base += len(v)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def polygonal_area(verts, faces):
+    return trimesh.Trimesh(verts, faces, process=False).area
+
+
+@pytest.mark.parametrize("flip", [False, True])
+def test_a_cap_beyond_the_opening_is_dropped_and_the_part_closed_onto_gamma(flip):
+    """The target is a cup (outward normals); Γ is its rim with Stokes' orientation (data.targets), and the
+    current's surface is the cup with faces against those normals. A level set that also holds a cap just
+    beyond the opening (a disk at z = −d that seals the cup, oriented as the sealed cup's) has two cut border
+    loops along Γ, running opposite ways. The closer zips the cup's, drops the cap: the mesh is the cup
+    plus the strip onto Γ, area that of the cup itself (independent of τ), border Γ. ``flip``: the opposite
+    current (every face and Γ reversed) gives the same surface."""
+    radius, height, d, tube = 0.3, 0.3, 0.02, 0.04
+    cup_v, cup_f = revolve(cup_profile(radius, height))
+    (gamma,) = mesh_boundary_loops(cup_v, cup_f)
+    assert np.allclose(gamma[:, 2], 0) and np.allclose(np.linalg.norm(gamma[:, :2], axis=1), radius)
+    cup_area = polygonal_area(cup_v, cup_f)
+    # cap: a disk at z = −d; its profile climbs outwards, so revolve's normals point −z: flip to +z (into the cup)
+    cap_v, cap_f = revolve(np.stack([np.linspace(0, radius, 16), np.full(16, -d)], 1))
+    cap_f = cap_f[:, ::-1]
+    verts, faces = merge((cup_v, cup_f[:, ::-1]), (cap_v, cap_f))  # the sealed cup, normals inward (along ω)
+    if flip:
+        faces, gamma = faces[:, ::-1], gamma[::-1]
+    assert trimesh.Trimesh(*merge((cup_v, cup_f[:, ::-1]), (cap_v, cap_f)), process=True).is_winding_consistent
+
+    v, f = cut_tube(verts, faces, [gamma], tube)
+    assert len(border_loops(f)) == 2  # the cup's cut border and the cap's, both along Γ
+    new_v, new_f, zipped = close_onto_loops(v, f, [gamma], 0.01, tube)
+    mesh = trimesh.Trimesh(new_v, new_f, process=True)
+    mesh.remove_unreferenced_vertices()
+    assert zipped == 1
+    assert boundary_error(mesh, [gamma]) < 1e-9
+    assert mesh.vertices[:, 2].min() > -1e-9  # nothing of the cap is left
+    assert len(mesh.split(only_watertight=False)) == 1 and mesh.is_winding_consistent
+    # the strip spans the cut wall between z = 0 and z = τ: the same polygonal cylinder, so the area is the cup's
+    assert mesh.area == pytest.approx(cup_area, rel=2e-3)
+    assert cup_area == pytest.approx(2 * np.pi * radius * height + 2 * np.pi * radius**2, rel=2e-3)
+
+
+def test_of_two_sheets_leaving_gamma_the_same_way_the_larger_is_kept():
+    """Two parallel disks spanning Γ (z = 0 and z = d < τ), faces the same way: both cut borders run along Γ
+    the current's way. One closed surface comes out, the larger cut piece (the offset disk, cut at
+    ρ = R − √(τ² − d²) instead of R − τ) zipped onto Γ: a disk of radius r and the cone strip from it to Γ."""
+    radius, d, tube = 0.3, 0.02, 0.04
+    gamma = circle(radius, n=128)[::-1]  # disks with +z normals run counter-clockwise: Γ the other way
+    disk = np.stack([np.linspace(0, radius, 16), np.zeros(16)], 1)
+    low_v, low_f = revolve(disk)
+    high_v, high_f = revolve(disk + [0, d])
+    verts, faces = merge((low_v, low_f[:, ::-1]), (high_v, high_f[:, ::-1]))  # both +z
+    v, f = cut_tube(verts, faces, [gamma], tube)
+    new_v, new_f, zipped = close_onto_loops(v, f, [gamma], 0.01, tube)
+    mesh = trimesh.Trimesh(new_v, new_f, process=True)
+    mesh.remove_unreferenced_vertices()
+    assert zipped == 1 and boundary_error(mesh, [gamma]) < 1e-9
+    assert len(mesh.split(only_watertight=False)) == 1 and mesh.is_winding_consistent
+    r = radius - math.sqrt(tube**2 - d**2)
+    assert mesh.area == pytest.approx(math.pi * r**2 + math.pi * (radius + r) * tube, rel=3e-3)
+    assert mesh.vertices[:, 2].max() == pytest.approx(d) and (mesh.face_normals[:, 2] > 0).all()
+
+
+def test_one_border_along_gamma_is_zipped_whichever_way_it_runs():
+    """A single cut border along a loop is zipped as before, whatever its direction (a current given by
+    hand need not follow α's convention)."""
+    verts, faces = grid_square(80)
+    v, f = clip_by_field(verts, faces, 0.45 - np.linalg.norm(verts[:, :2], axis=1))
+    for gamma in (circle(0.5, n=200), circle(0.5, n=200)[::-1]):
+        _, _, zipped = close_onto_loops(v, f, [gamma], 0.01, 0.05)
+        assert zipped == 1
+
+
+def test_a_strip_in_rows_is_the_same_surface_without_slivers():
+    """The annulus zipped onto a circle of radius 0.6 (strip 0.15 wide) in one row is made of triangles
+    0.15 long on edges of about 0.01: slivers. In 12 rows it is the same flat region (area π·0.36 as for
+    one row, border Γ, normals +z) in triangles whose smallest angle is typically over 30° (median; 4.8° in
+    one row), none thinner than the clipped disk's own thinnest (0.8°)."""
+    verts, faces = grid_square(80)
+    v, f = clip_by_field(verts, faces, 0.45 - np.linalg.norm(verts[:, :2], axis=1))
+    (border,) = border_loops(f)
+    gamma = circle(0.6, n=300)
+    inner = np.degrees(trimesh.Trimesh(v, f, process=False).face_angles.min(1)).min()
+    for rows, (lo, hi) in ((1, (0, 5)), (12, (30, 90))):
+        new_v, new_f = zip_to_loop(v, border, gamma, rows)
+        strip = trimesh.Trimesh(np.concatenate([v, new_v]), new_f, process=False)
+        mesh = trimesh.Trimesh(np.concatenate([v, new_v]), np.concatenate([f, new_f]))
+        assert abs(mesh.area - math.pi * 0.36) < 3e-3 and boundary_error(mesh, [gamma]) < 1e-9
+        assert mesh.is_winding_consistent and (mesh.face_normals[:, 2] > 0).all()
+        smallest = np.degrees(strip.face_angles.min(1))
+        assert lo < np.median(smallest) < hi
+        assert rows == 1 or smallest.min() > inner
+
+
+class SealedCup(torch.nn.Module):
+    """A current whose f is a smoothed indicator of a cup sealed just beyond its opening: the cup of
+    ``cup_profile`` (open at z = 0, rim Γ) closed by a flat bottom at z = −d. Its level set f = s (s = mean of
+    f over Γ, which lies on the sealed surface) is the cup and the cap both, as a reconstruction's wrist is;
+    ω = ∇f + alpha_scale·α_Γ with Γ the cup's Stokes rim for outward normals (counter-clockwise from +z)."""
+
+    def __init__(self, radius=0.3, height=0.3, d=0.02, width=0.02, alpha_scale=1e-3):
+        super().__init__()
+        self.dim, self.alpha_scale = 3, alpha_scale
+        self.radius, self.height, self.d, self.width = radius, height, d, width
+        self.loops = [torch.as_tensor(circle(radius, n=96), dtype=torch.float32)]
+
+    def f(self, x):
+        rho, z = x[:, :2].norm(dim=-1), x[:, 2]
+        wall = torch.maximum(rho - self.radius, -self.d - z)
+        dome = (x - x.new_tensor([0.0, 0.0, self.height])).norm(dim=-1) - self.radius
+        return torch.sigmoid(-torch.where(z > self.height, dome, wall) / self.width)
+
+    def alpha(self, x):
+        from deepcurrents.geometry import biot_savart
+
+        return self.alpha_scale * biot_savart(x, self.loops)
+
+    def evaluate(self, x, chunk_size=1 << 15, omega=True):
+        with torch.enable_grad():
+            xg = x.detach().requires_grad_(True)
+            f = self.f(xg)
+            (grad,) = torch.autograd.grad(f.sum(), xg)
+        return (f.detach(), grad + self.alpha(x)) if omega else f.detach()
+
+
+def test_level_set_of_a_sealed_cup_gives_the_cup_closed_onto_gamma():
+    """extract_surface (level set) on a field whose f = s holds the cup and a cap across its opening: the
+    mesh is the cup alone, its border Γ, its area the cup's 2πRh + 2πR², in strip rows about a voxel tall."""
+    cup = SealedCup()
+    rim_v, rim_f = revolve(cup_profile(cup.radius, cup.height), 96)
+    (stokes_rim,) = mesh_boundary_loops(rim_v, rim_f)
+    assert np.allclose(stokes_rim, cup.loops[0].double().numpy(), atol=1e-6)  # the outward cup's Stokes rim is Γ
+    bounds = np.array([[-0.4, -0.4, -0.12], [0.4, 0.4, 0.7]])
+    result = extract_surface(cup, resolution=40, bounds=bounds, method="level_set")
+    mesh, gamma = result.mesh, cup.loops[0].double().numpy()
+    assert result.zipped_loops == 1 and boundary_error(mesh, [gamma]) < 1e-6
+    assert mesh.vertices[:, 2].min() > -1e-6  # the cap is gone
+    assert len(mesh.split(only_watertight=False)) == 1 and mesh.is_winding_consistent
+    assert mesh.area == pytest.approx(2 * np.pi * cup.radius * cup.height + 2 * np.pi * cup.radius**2, rel=0.02)

@@ -50,6 +50,7 @@ class ExtractConfig:
     min_alignment: float | None = None  # level_set: keep faces with cos(ω, ∇f) ≥ this (-1: off)
     min_component: float | None = None  # drop pieces below this fraction of the area (0: off)
     padding: float | None = None  # the meshed box: Γ's bounding box grown by this
+    strip_rows: int | None = None  # rows of the strip from the cut border to Γ (None: the run's, else by method)
 
 
 register_app("extract", ExtractConfig, __doc__)
@@ -58,6 +59,8 @@ register_app("extract", ExtractConfig, __doc__)
 def extract_checkpoint(cfg: DictConfig) -> dict:
     """The app's body. → a summary (paths, area, faces, boundary error)."""
     positive_int("resolution", cfg.resolution, 8)
+    if cfg.strip_rows is not None:
+        positive_int("strip_rows", cfg.strip_rows)
     fmt = str(cfg.format).lower().lstrip(".")
     if fmt not in FORMATS:
         raise ConfigError(f"format='{cfg.format}' must be one of {', '.join(FORMATS)}.")
@@ -76,7 +79,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
                              boundary_tube=cfg.boundary_tube, close_boundary=cfg.close_boundary,
                              newton_steps=cfg.newton_steps, method=cfg.method, min_alignment=cfg.min_alignment,
-                             min_component=cfg.min_component, padding=cfg.padding)
+                             min_component=cfg.min_component, padding=cfg.padding, strip_rows=cfg.strip_rows)
     result = extract_surface(current, **settings)
     mesh = result.mesh
     stem = f"mesh_r{cfg.resolution}"

@@ -78,6 +78,7 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "data.num_samples")
     _positive_int(cfg, "evaluation.mass_samples")
     _positive_int(cfg, "evaluation.mesh.resolution", 8)
+    _positive_int(cfg, "evaluation.mesh.strip_rows")
     _positive_int(cfg, "evaluation.curve.resolution", 8)
     _positive_int(cfg, "callbacks.model_checkpoint.every_n_train_steps")
     for key in ("evaluation.mass_rel_stderr", "evaluation.mesh.delta", "evaluation.mesh.boundary_tube",

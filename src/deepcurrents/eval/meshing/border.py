@@ -2,6 +2,15 @@
 clipped on the iso-line of the distance to Γ, not removed whole), then join each cut border loop to its
 loop of Γ by a strip of triangles (a "zipper" ordered by arc-length parameter), so that the mesh's border
 is Γ itself. Near Γ the network is smooth while α is singular, so what the field says there is not trusted.
+
+Where several cut border loops run along one loop of Γ, the extracted set has more than one sheet leaving
+Γ. On reconstructions this is a cap: the network also represents the part sealed across its opening (the
+hand closed beyond the wrist, the head below the neck), and the level set holds that cap as a disk just
+outside the opening, spanning Γ, whose faces (oriented along ω like the rest) make with the part one
+consistently oriented closed surface. Its border therefore runs along Γ the other way round: the part's
+own border runs against Γ's direction (ω flows against the Stokes normal of Γ's orientation, see
+``data.targets``), the cap's along it. ``close_onto_loops`` zips the loop with that Stokes sense and drops
+the pieces whose only Γ borders were passed over, so the mesh's border is Γ and nothing else.
 """
 
 from __future__ import annotations
@@ -10,11 +19,18 @@ import logging
 
 import numpy as np
 import torch
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from deepcurrents.geometry.polyline import closed_loop_segments, project_to_segments
 from deepcurrents.geometry.topology import border_loops
 
 log = logging.getLogger(__name__)
+
+# How a border of a mesh whose faces are oriented along ω runs along the loop of Γ it closes onto: −1,
+# against Γ's direction, since ω flows against the right-hand (Stokes) normal of Γ's orientation (for the
+# flat disk of ``data.targets``, f = −alpha_scale·Ω_Γ drops across the sheet along that normal).
+STOKES_WINDING = -1.0
 
 
 def clip_by_field(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,19 +113,24 @@ def _winding_along(par: np.ndarray) -> float:
     return float(((steps + 0.5) % 1.0 - 0.5).sum())
 
 
-def _follows_loop(points: np.ndarray, loop: np.ndarray, max_distance: float) -> bool:
-    """Whether a closed polyline runs once along a loop of Γ, within ``max_distance`` (median)."""
+def _winding_if_along(points: np.ndarray, loop: np.ndarray, max_distance: float) -> float | None:
+    """The signed winding of a closed polyline (P, 3) along a loop of Γ (n, 3) if it runs once along it
+    within ``max_distance`` (median), else None."""
     par, dist = _loop_parameter(points, loop)
-    return bool(np.median(dist) < max_distance and abs(abs(_winding_along(par)) - 1.0) < 0.1)
+    winding = _winding_along(par)
+    return winding if np.median(dist) < max_distance and abs(abs(winding) - 1.0) < 0.1 else None
 
 
-def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray
+def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray, rows: int = 1
                 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Triangles joining a mesh border loop to a closed curve, ordered by the curve's arc-length parameter.
 
     vertices (V, 3); border: indices of the border loop in the mesh's orientation; loop (n, 3) the curve.
-    Returns (new vertices (n, 3) = the curve's, faces (m + n, 3) indexing [vertices; new]) or None when
-    the border does not wind exactly once along the curve.
+    ``rows`` > 1 splits the strip into that many rows: rows − 1 rings between border and curve, each with
+    the curve's n parameters, at (1 − t)·border + t·curve (the same ruled strip, in triangles about
+    τ/rows tall instead of τ-long slivers).
+    Returns (new vertices (n·rows, 3) = the curve's then the rings', faces indexing [vertices; new]) or
+    None when the border does not wind exactly once along the curve.
     """
     loop = np.ascontiguousarray(loop)
     par, _ = _loop_parameter(vertices[border], loop)
@@ -132,10 +153,12 @@ def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray
     order = np.roll(np.arange(n), -int(order[0]))  # start at the curve vertex just past the border's start
     qg = np.concatenate([qg[order], [qg[order[0]] + 1.0]])
     base = len(vertices)
+    # the ring next to the border: the curve itself, or the first of the rows − 1 rings (curve's order)
+    first = base + order if rows <= 1 else base + n + np.arange(n)
     tris, i, k = [], 0, 0
     while i < m or k < n:
         bi, bj = walk[i % m], walk[(i + 1) % m]
-        gk, gl = base + order[k % n], base + order[(k + 1) % n]
+        gk, gl = first[k % n], first[(k + 1) % n]
         if k >= n or (i < m and pb[i + 1] <= qg[k + 1]):
             tris.append((bi, gk, bj))
             i += 1
@@ -143,31 +166,88 @@ def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray
             tris.append((bi, gk, gl))
             k += 1
     tris = np.asarray(tris)
+    new_vertices = loop
+    if rows > 1:
+        # the border at the curve's parameters (pb is where each border vertex sits; walk[m] = walk[0] at 1)
+        at = vertices[np.append(walk, walk[0])]
+        border_at = np.stack([np.interp(qg[:n], pb, at[:, c]) for c in range(3)], 1)
+        t = np.arange(1, rows)[:, None, None] / rows
+        rings = (1 - t) * border_at + t * loop[order]  # (rows − 1, n, 3)
+        index = [base + n + j * n + np.arange(n) for j in range(rows - 1)] + [base + order]
+        quads = []
+        for lo, hi in zip(index[:-1], index[1:], strict=True):
+            lo1, hi1 = np.roll(lo, -1), np.roll(hi, -1)
+            quads += [np.stack([lo, hi, lo1], 1), np.stack([lo1, hi, hi1], 1)]
+        tris = np.concatenate([tris, *quads])
+        new_vertices = np.concatenate([loop, rings.reshape(-1, 3)])
     if not forward:
         tris = tris[:, ::-1]
-    return loop, tris
+    return new_vertices, tris
+
+
+def _face_components(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """Label of each face's connected component (faces sharing a vertex are connected). faces (F, 3) → (F,)."""
+    rows = np.repeat(faces[:, 0], 2)
+    cols = faces[:, 1:].reshape(-1)
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
+    _, vertex_label = connected_components(graph, directed=False)
+    return vertex_label[faces[:, 0]]
+
+
+def _triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Areas (F,) of triangles faces (F, 3) of vertices (V, 3)."""
+    tri = vertices[faces]
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
 
 
 def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.ndarray], spacing: float,
-                     tube: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """Zips each loop of Γ (M_i, 3), densified to ``spacing``, to the one border loop of the mesh that runs
+                     tube: float, strip_rows: int = 1) -> tuple[np.ndarray, np.ndarray, int]:
+    """Zips each loop of Γ (M_i, 3), densified to ``spacing``, to the border loop of the mesh that runs
     along it (winds once around Γ's parameter, as holes in the surface do not, within 5 ``tube`` radii).
-    A Γ loop with no such border (the surface is torn near Γ) or several is left open, with a warning.
+
+    One such border is zipped whatever its direction. Among several (a cap or a second sheet beside the
+    surface, see the module docstring) the one running with ``STOKES_WINDING`` is zipped (of several of
+    those, the one on the largest connected piece), and a connected piece of the mesh that has a passed-over
+    border along Γ and none zipped is dropped. A Γ loop with no such border (the surface is torn near Γ),
+    or whose borders all run the wrong way, is left open with a warning. The faces must be oriented along
+    the current. ``strip_rows``: rows of each strip (``zip_to_loop``).
 
     vertices (V, 3), faces (F, 3) → (vertices (V', 3), faces (F', 3), number of loops closed).
     """
-    new_v, new_f = [vertices], [faces]
     borders = border_loops(faces)
-    zipped = 0
+    label = _face_components(faces, len(vertices)) if len(faces) else np.zeros(0, dtype=int)
+    piece_area = np.bincount(label, weights=_triangle_areas(vertices, faces)) if len(faces) else np.zeros(0)
+    vertex_piece = np.full(len(vertices), -1)
+    vertex_piece[faces.reshape(-1)] = np.repeat(label, 3)
+    chosen: list[tuple[np.ndarray, np.ndarray]] = []  # (border, densified Γ loop)
+    passed_over: list[np.ndarray] = []
     for loop in loops:
-        dense = _densify_loop(loop, spacing)
-        along = [b for b in borders if _follows_loop(vertices[b], loop, max_distance=5 * tube)]
-        if len(along) != 1:
-            log.warning("Γ loop with %d vertices: %d cut border loops run along it (need 1); left open.",
-                        len(loop), len(along))
+        windings = [_winding_if_along(vertices[b], loop, 5 * tube) for b in borders]
+        along = [(b, w) for b, w in zip(borders, windings, strict=True) if w is not None]
+        pick = None
+        if len(along) == 1:
+            pick = along[0][0]
+        elif len(along) > 1:
+            right = [b for b, w in along if np.sign(w) == STOKES_WINDING]
+            if right:
+                pick = max(right, key=lambda b: piece_area[vertex_piece[b[0]]])
+            passed_over += [b for b, _ in along if b is not pick]
+        if pick is None:
+            why = "none" if not along else f"{len(along)}, none running against Γ as the current's border does"
+            log.warning("Γ loop with %d vertices: %s of the cut border loops run along it; left open.",
+                        len(loop), why)
             continue
-        added_v, added_f = zip_to_loop(np.concatenate(new_v), along[0], dense)
+        chosen.append((pick, _densify_loop(loop, spacing)))
+    if passed_over:
+        kept_pieces = {int(vertex_piece[b[0]]) for b, _ in chosen}
+        drop = sorted({int(vertex_piece[b[0]]) for b in passed_over} - kept_pieces)
+        if drop:
+            log.info("Dropped %d piece(s) of area %.4g (of %.4g) joined to Γ only by a passed-over border "
+                     "(a cap or a second sheet).", len(drop), piece_area[drop].sum(), piece_area.sum())
+            faces = faces[~np.isin(label, drop)]
+    new_v, new_f = [vertices], [faces]
+    for border, dense in chosen:
+        added_v, added_f = zip_to_loop(np.concatenate(new_v), border, dense, strip_rows)
         new_v.append(added_v)
         new_f.append(added_f)
-        zipped += 1
-    return np.concatenate(new_v), np.concatenate(new_f), zipped
+    return np.concatenate(new_v), np.concatenate(new_f), len(chosen)

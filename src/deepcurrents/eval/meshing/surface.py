@@ -12,8 +12,9 @@ faces. Here, whatever the method (``METHODS``: the phase by default, the paper's
 4. vertices move onto the surface by a few clamped Newton steps of the method's residual;
 5. faces are oriented along the current (ω points along the normal of the surface it represents);
 6. the tube is closed: each cut border loop is zipped to its loop of Γ (``border.close_onto_loops``), so
-   the mesh's border is Γ itself. A loop that cannot be matched (the surface is torn near Γ) is left open
-   and ``metrics.boundary_error`` shows it.
+   the mesh's border is Γ itself (of several borders along one loop, the one running the current's way;
+   a cap across a reconstruction's opening is dropped). A loop that cannot be matched (the surface is
+   torn near Γ) is left open and ``metrics.boundary_error`` shows it.
 """
 
 from __future__ import annotations
@@ -112,6 +113,7 @@ def extract_surface(
     min_alignment: float = 0.5,
     close_boundary: bool = True,
     method: str = "phase",
+    strip_rows: int | None = None,
     chunk_size: int = 1 << 16,
 ) -> MeshingResult:
     """The surface of a 3D current as a triangle mesh whose border lies on Γ (see the module docstring).
@@ -130,6 +132,10 @@ def extract_surface(
             whatever f's offset there. "level_set" (``meshing.level_set``): the paper's f = s, one level for
             the whole surface (it misses sheets where f's jump does not straddle s, e.g. an undertrained
             trefoil).
+        strip_rows: rows of triangles in each strip from the cut border to Γ. None: one row (triangles
+            τ long) for the phase, so minimal-surface meshes are as they were; about τ/voxel rows (triangles
+            about a voxel tall, no slivers) for every other method, the level set of reconstructions and
+            families among them.
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
@@ -174,7 +180,9 @@ def extract_surface(
         faces = faces[:, ::-1].copy()
     zipped = 0
     if tube > 0:
-        verts, faces, zipped = close_onto_loops(verts, faces, loops, voxel, tube)
+        if strip_rows is None:
+            strip_rows = 1 if method == "phase" else max(1, round(tube / voxel))
+        verts, faces, zipped = close_onto_loops(verts, faces, loops, voxel, tube, strip_rows)
     mesh = trimesh.Trimesh(verts, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
