@@ -141,7 +141,9 @@ COLUMNS = ("trainer.max_steps", "model.optim.step_size", "model.optim.lr", "mode
            "evaluation.mesh.resolution")
 # Composed before configs had one place for lengths (commit 238db52), unchanged since but for one fix:
 # recon_baseline under preset=cpu ran 1000 steps (preset_sizes overrode the experiment) where its wall-time
-# budget is meant to stop it (1,000,000). recon_part stands for every recon_<part> alias (tested below).
+# budget is meant to stop it (1,000,000); and reconstructions under preset=cpu train at lr 3e-3 with a cosine over
+# the budget (preset_sizes/model/cpu_reconstruction.yaml; step_size is then unused).
+# recon_part stands for every recon_<part> alias (tested below).
 # Columns in the order of COLUMNS; '-': the key is absent.
 LENGTHS_TABLE = """
 experiment          preset steps   step  lr     gamma samples surface freqs width depth ckpt  mass    ucd    mesh
@@ -166,11 +168,11 @@ recon_2d_semicircle cpu    400     150   0.001  0.6   1024    -       256   128 
 recon_baseline      paper  1000000 2000  0.001  0.6   4000    4000    1024  256   4     1000  1048576 100000 128
 recon_baseline      cpu    1000000 400   0.001  0.6   1024    1024    256   128   3     500   65536   100000 96
 recon_mesh          paper  10000   2000  0.001  0.6   4000    4000    1024  256   4     1000  1048576 100000 128
-recon_mesh          cpu    1000    400   0.001  0.6   1024    1024    256   128   3     500   65536   100000 96
+recon_mesh          cpu    1000    400   0.003  0.6   1024    1024    256   128   3     500   65536   100000 96
 recon_points        paper  10000   2000  0.001  0.6   4000    4000    1024  256   4     1000  1048576 100000 128
-recon_points        cpu    1000    400   0.001  0.6   1024    1024    256   128   3     500   65536   100000 96
+recon_points        cpu    1000    400   0.003  0.6   1024    1024    256   128   3     500   65536   100000 96
 recon_part          paper  10000   2000  0.001  0.6   4000    4000    1024  256   4     1000  1048576 100000 128
-recon_part          cpu    1000    400   0.001  0.6   1024    1024    256   128   3     500   65536   100000 96
+recon_part          cpu    1000    400   0.003  0.6   1024    1024    256   128   3     500   65536   100000 96
 """
 
 

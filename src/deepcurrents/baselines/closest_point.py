@@ -122,5 +122,8 @@ class ClosestPointModule(DeepCurrentsModule):
         metrics = {"ucd": ucd, "ucd_reverse": reverse, "chamfer": 0.5 * (ucd + reverse),
                    "loss": float(((pred_y - y) ** 2).sum(1).mean()), **self.run_metrics(),
                    "target": self.target_source}
+        scale = float(self.target_scale)
+        if scale != 1.0:  # a normalised target (data.normalize): the UCD in the target file's units as well
+            metrics["ucd_input_units"] = ucd * scale
         trimesh.PointCloud(TargetGeometry.to_input(self, pred)).export(out_dir / "points.ply")
         return self.write_metrics(out_dir, metrics)

@@ -19,6 +19,7 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.human_parts import dataset_path
+from deepcurrents.data.sampling import NEAR_SAMPLING_KINDS, NearTargetSampler
 from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_point_sample, mesh_boundary_loops
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry import Boundary, load_boundary, validate_loops, validate_points
@@ -127,8 +128,10 @@ class TargetSamples(IterableDataset):
 
     def __init__(self, target: dict, loops: list[np.ndarray], num_samples: int, num_surface_samples: int,
                  boundary_sigma: float, boundary_weighting: bool, surface_loss: bool, seed: int = 0,
-                 rank: int = 0, start_step: int = 0, batch_kind: str = "current", near_sigma: float = 0.05):
+                 rank: int = 0, start_step: int = 0, batch_kind: str = "current", near_sigma: float = 0.05,
+                 ambient: dict | None = None):
         self.target, self.loops = target, loops
+        self.ambient = dict(ambient or {"kind": "uniform"})  # see ambient_sampler
         self.batch_kind, self.near_sigma = batch_kind, near_sigma
         self.num_samples, self.num_surface_samples = num_samples, num_surface_samples
         self.kwargs = {"boundary_sigma": boundary_sigma, "boundary_weighting": boundary_weighting,
@@ -142,12 +145,53 @@ class TargetSamples(IterableDataset):
 
     def __iter__(self) -> Iterator[dict[str, torch.Tensor]]:
         target = self.build()
+        ambient = ambient_sampler(target, self.ambient, self.seed)
         for _, gen in step_generators(self.seed, self.rank, self.start_step):  # batch = f(seed, rank, step)
             if self.batch_kind == "closest_point":  # the baseline: x and its closest point on Σ
                 yield closest_point_sample(target, self.num_samples, self.num_surface_samples, gen,
                                            self.near_sigma)
             else:
-                yield target.sample(self.num_samples, self.num_surface_samples, gen, **self.kwargs)
+                yield target.sample(self.num_samples, self.num_surface_samples, gen, ambient=ambient,
+                                    **self.kwargs)
+
+
+AMBIENT_KEYS = ("kind", "uniform_fraction", "near_sigma", "anchors", "weighted")
+
+
+def ambient_options(sampling: dict | None) -> dict:
+    """``data.sampling`` of a reconstruction, checked (one sentence naming the key). kind "uniform" (the
+    paper's samples of [-1, 1]^3) or "near" (``NearTargetSampler``: ``uniform_fraction`` uniform, the rest
+    Gaussian, σ = ``near_sigma``, around ``anchors`` fixed points of Σ; ``weighted``: importance weights)."""
+    sampling = dict(sampling or {})
+    unknown = set(sampling) - set(AMBIENT_KEYS)
+    if unknown:
+        raise ConfigError(f"data.sampling has unknown keys {sorted(unknown)}; a reconstruction takes "
+                          f"{', '.join(AMBIENT_KEYS)}.")
+    kind = sampling.setdefault("kind", "uniform")
+    if kind not in NEAR_SAMPLING_KINDS:
+        raise ConfigError(f"data.sampling.kind={kind!r} must be one of {', '.join(NEAR_SAMPLING_KINDS)} for a "
+                          "reconstruction.")
+    if kind == "near":
+        positive_int("data.sampling.anchors", sampling.setdefault("anchors", 4096))
+        for key, default in (("uniform_fraction", 0.5), ("near_sigma", 0.02)):
+            value = sampling.setdefault(key, default)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+                raise ConfigError(f"data.sampling.{key}={value!r} must be a positive number.")
+        if not sampling["uniform_fraction"] <= 1:
+            raise ConfigError(f"data.sampling.uniform_fraction={sampling['uniform_fraction']} must be in (0, 1].")
+        sampling["weighted"] = bool(sampling.get("weighted", True))
+    return sampling
+
+
+def ambient_sampler(target: MeshTarget | PointCloudTarget, sampling: dict,
+                    seed: int = 0) -> NearTargetSampler | None:
+    """The ambient sampler of ``ambient_options`` for a built target: None for uniform samples; the anchors
+    of "near" are drawn once from Σ with ``seed`` (the same in every worker and on every resume)."""
+    if sampling.get("kind", "uniform") == "uniform":
+        return None
+    anchors, _ = target.sample_surface(int(sampling["anchors"]), torch.Generator().manual_seed(seed))
+    return NearTargetSampler(anchors, float(sampling["near_sigma"]), float(sampling["uniform_fraction"]),
+                             weighted=bool(sampling["weighted"]))
 
 
 class ReconstructionDataModule(L.LightningDataModule):
@@ -161,6 +205,8 @@ class ReconstructionDataModule(L.LightningDataModule):
     ``normalize``: True/"auto"/False, see :func:`normalisation` (dataset meshes are already in [-0.5, 0.5]^3).
     ``batch_kind``: "current" (DeepCurrents' batches) or "closest_point" (the baseline's: ``num_samples``
     uniform points and ``num_surface_samples`` points near Σ, σ = ``near_sigma``, with their closest points).
+    ``sampling``: where DeepCurrents' ambient samples come from (``ambient_options``: the paper's uniform
+    samples by default, or "near": concentrated near Σ with importance weights).
     """
 
     def __init__(
@@ -181,6 +227,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         curve_tolerance: float = 0.05,
         batch_kind: str = "current",
         near_sigma: float = 0.05,
+        sampling: dict | None = None,
         num_workers: int = 0,
         seed: int = 0,
     ):
@@ -194,6 +241,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         if batch_kind not in ("current", "closest_point"):
             raise ConfigError(f"data.batch_kind='{batch_kind}' must be 'current' or 'closest_point'.")
         self.batch_kind, self.near_sigma = batch_kind, float(near_sigma)
+        self.ambient = ambient_options(sampling)
         if normalize not in (True, False, "auto"):
             raise ConfigError(f"data.normalize={normalize!r} must be true, false or auto.")
         self.num_samples, self.num_surface_samples = num_samples, num_surface_samples
@@ -256,7 +304,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         start = trainer.global_step if trainer is not None else 0
         dataset = TargetSamples(self.target, self.loops, self.num_samples, self.num_surface_samples,
                                 seed=self.seed, rank=rank, start_step=start, batch_kind=self.batch_kind,
-                                near_sigma=self.near_sigma, **self.sampling)
+                                near_sigma=self.near_sigma, ambient=self.ambient, **self.sampling)
         return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
                           persistent_workers=self.num_workers > 0)
 

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.geometry.topology import border_edges
 
 # the paper's surface-loss offsets ε ~ U[0.0199, 0.0201]
@@ -253,11 +254,25 @@ class PointCloudTarget:
 
 def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_surface: int,
                   generator: torch.Generator, boundary_sigma: float = 0.1, boundary_weighting: bool = True,
-                  surface_loss: bool = True, domain: float = 1.0) -> dict[str, torch.Tensor]:
-    """One training batch for a target (see :func:`reconstruction_sample`)."""
-    x = (torch.rand(num_ambient, 3, generator=generator, dtype=torch.float64) * 2.0 - 1.0) * domain
+                  surface_loss: bool = True, domain: float = 1.0,
+                  ambient: NearTargetSampler | None = None) -> dict[str, torch.Tensor]:
+    """One training batch for a target (see :func:`reconstruction_sample`). ``ambient``: where the ambient
+    samples come from (None: uniform in [-domain, domain]^3, the paper's; a ``NearTargetSampler``: a
+    mixture concentrated near Σ whose importance weights are folded into the metric, B_x ← w_imp B_x, so
+    the current loss keeps its expectation)."""
+    if ambient is None:
+        x = (torch.rand(num_ambient, 3, generator=generator, dtype=torch.float64) * 2.0 - 1.0) * domain
+        importance = None
+    else:
+        x, importance = ambient.sample(num_ambient, generator)
+        # shuffled, so that the boundary weighting's half (the first) holds both kinds of sample
+        order = torch.randperm(num_ambient, generator=generator)
+        x, importance = x[order], importance[order]
     near = target.closest(x.numpy())
     w = boundary_weights(x, target.loops, boundary_sigma, boundary_weighting)
+    if importance is not None:
+        # w_x's mean over U stays 1 (its importance-weighted batch mean), then the importance weights
+        w = (w.double() * importance * (importance.sum() / (w.double() * importance).sum())).float()
     metric = reconstruction_metric(torch.as_tensor(near.normal, dtype=torch.float32),
                                    torch.as_tensor(near.on_boundary), w)
     batch = {"x": x.float(), "metric": metric}

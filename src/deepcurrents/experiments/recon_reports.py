@@ -27,8 +27,16 @@ def _fmt(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else ("" if v is None else str(v))
 
 
+def _input_units(metrics: dict[str, Any], key: str):
+    """A length metric in the target file's units: ``<key>_input_units`` where the run normalised its target
+    (data.normalize), else ``<key>`` (already in those units), so that runs in different frames compare."""
+    value = metrics.get(f"{key}_input_units")
+    return value if value is not None else metrics.get(key)
+
+
 def table1_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """One row per category from members named ``ours_<cat>`` and ``baseline_<cat>``."""
+    """One row per category from members named ``ours_<cat>`` and ``baseline_<cat>``; UCDs in the target
+    file's units (``_input_units``)."""
     by_name = {r["name"]: r["metrics"] for r in results}
     cats = [r["name"].split("_", 1)[1] for r in results if r["name"].startswith("ours_")]
     rows = []
@@ -37,7 +45,7 @@ def table1_rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
         paper = PAPER_TABLE1.get(cat, {})
         rows.append({
             "model": cat,
-            "ucd_baseline": base.get("ucd"), "ucd_ours": ours.get("ucd"),
+            "ucd_baseline": _input_units(base, "ucd"), "ucd_ours": _input_units(ours, "ucd"),
             "paper_ucd_baseline": paper.get("baseline"), "paper_ucd_ours": paper.get("ours"),
             "ucd_reverse_baseline": base.get("ucd_reverse"), "ucd_reverse_ours": ours.get("ucd_reverse"),
             "boundary_error_ours": ours.get("boundary_error"),
