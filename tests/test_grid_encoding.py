@@ -96,3 +96,13 @@ def test_current_with_grid_features_has_omega_equal_to_grad_f_plus_alpha():
     assert torch.allclose(f, current.f(x))
     omega.norm(dim=-1).mean().backward()
     assert current.grid.table.grad is not None and current.grid.table.grad.abs().sum() > 0
+
+
+@pytest.mark.parametrize("table_size", [1 << 18, 50])
+def test_closed_form_jacobian_equals_autograd(table_size):
+    g = grid(table_size)
+    x = torch.rand(6, 3, generator=torch.Generator().manual_seed(4), dtype=torch.float64) * 1.8 - 0.9
+    features, jacobian = g.features_and_jacobian(x)
+    jac = torch.autograd.functional.jacobian(g, x)        # (6, 6, 6, 3)
+    assert torch.allclose(features, g(x))
+    assert torch.allclose(jacobian, torch.stack([jac[i, :, i, :] for i in range(len(x))]), atol=1e-12)

@@ -113,26 +113,24 @@ class NeuralCurrent(nn.Module):
                 f, grad_f = field_and_gradient(self.mlp, self.encoding, x)
             return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
         with torch.enable_grad():
-            # autograd to the Fourier features (then their closed-form Jacobian), and to x itself for what
-            # reads x directly: the grid features, or the MLP when the Fourier features are off
-            needs_x = self.grid is not None or not self.encoding.enabled
-            x_in = x.detach().requires_grad_(True) if needs_x else x  # a separate leaf: sin/cos stay off its graph
+            # autograd to the MLP's input features, then each encoding's closed-form Jacobian (Fourier: 2πB cos/sin;
+            # grid: its multilinear weights' slopes); x itself only when the Fourier features are off
             parts, wrt = [], []
             if self.encoding.enabled:
                 sin, cos = self.encoding.sin_cos(x)
                 parts.append(torch.cat([sin, cos], dim=-1).requires_grad_(True))
-                wrt.append(parts[-1])
             else:
-                parts.append(x_in)
+                parts.append(x.requires_grad_(True))
+            wrt.append(parts[-1])
             if self.grid is not None:
-                parts.append(self.grid(x_in))
-            if needs_x:
-                wrt.append(x_in)
+                grid_features, grid_jacobian = self.grid.features_and_jacobian(x)
+                parts.append(grid_features)
+                wrt.append(grid_features)
             f = self.mlp(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]).squeeze(-1)
             grads = torch.autograd.grad(f.sum(), wrt, create_graph=create_graph)
-            grad_f = grads[-1] if needs_x else 0.0
-            if self.encoding.enabled:
-                grad_f = grad_f + self.encoding.input_gradient(grads[0], sin, cos)
+            grad_f = self.encoding.input_gradient(grads[0], sin, cos) if self.encoding.enabled else grads[0]
+            if self.grid is not None:
+                grad_f = grad_f + torch.einsum("nk,nkd->nd", grads[1], grid_jacobian)
         if not create_graph:
             f, grad_f = f.detach(), grad_f.detach()
         return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)

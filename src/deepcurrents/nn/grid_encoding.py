@@ -72,15 +72,42 @@ class MultiresGrid(nn.Module):
         index = torch.where(self.hashed.view(1, -1, 1), hashed % size, dense)
         return index + self.offsets[:-1].view(1, -1, 1)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        # u in grid units per level: (N, L, dim); the cell is fixed (floor, no gradient), t carries ∂/∂x
+    def _cells(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per level, the table rows of the 2^dim corners of x's cell (N, L, C) and x's position in it (N, L, dim),
+        the latter still differentiable in x."""
         u = (x.clamp(-1.0, 1.0).unsqueeze(1) + 1.0) * (0.5 * self.resolutions.view(1, -1, 1).to(x.dtype))
         cell = torch.minimum(u.detach().floor().long(), self.resolutions.view(1, -1, 1) - 1)
-        t = u - cell.to(x.dtype)                                            # (N, L, dim) in [0, 1]
-        corners = self.corners                                             # (C, dim), C = 2^dim
-        index = self.vertex_index(cell.unsqueeze(2) + corners.view(1, 1, *corners.shape))  # (N, L, C)
-        # multilinear weights Π_d (t_d or 1 − t_d): (N, L, C)
+        index = self.vertex_index(cell.unsqueeze(2) + self.corners.view(1, 1, *self.corners.shape))
+        return index, u - cell.to(x.dtype)
+
+    def _corner_values(self, index: torch.Tensor) -> torch.Tensor:
+        """Table rows (N, L, C) → values (N, L, C, F); index_select's backward is one index_add."""
+        return self.table.index_select(0, index.reshape(-1)).view(*index.shape, self.features)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        index, t = self._cells(x)
         tc = t.unsqueeze(2)
-        weights = torch.where(corners.view(1, 1, *corners.shape).bool(), tc, 1.0 - tc).prod(-1)
-        values = self.table[index.reshape(-1)].view(*index.shape, self.features)   # (N, L, C, F)
-        return (weights.unsqueeze(-1) * values).sum(2).reshape(x.shape[0], -1)
+        # multilinear weights Π_d (t_d or 1 − t_d): (N, L, C)
+        weights = torch.where(self.corners.view(1, 1, *self.corners.shape).bool(), tc, 1.0 - tc).prod(-1)
+        return (weights.unsqueeze(-1) * self._corner_values(index)).sum(2).reshape(x.shape[0], -1)
+
+    def features_and_jacobian(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The features (N, L·F) and their Jacobian ∂features/∂x (N, L·F, dim) in closed form, both linear in the
+        table: the training step differentiates them once (in the table), not twice through the weights."""
+        with torch.no_grad():
+            index, t = self._cells(x)
+            on = self.corners.view(1, 1, *self.corners.shape).bool()           # (1, 1, C, dim)
+            factors = torch.where(on, t.unsqueeze(2), 1.0 - t.unsqueeze(2))     # (N, L, C, dim)
+            half_res = (0.5 * self.resolutions.to(x.dtype)).view(1, -1, 1)
+            # ∂w_c/∂x_d = ±(res/2) Π_{e≠d} factor_e, as products of slices (no gathers)
+            ones = torch.ones_like(factors[..., :1])
+            before = torch.cat([ones, factors[..., :-1]], -1).cumprod(-1)       # Π_{e<d}
+            after = torch.cat([factors[..., 1:], ones], -1).flip(-1).cumprod(-1).flip(-1)  # Π_{e>d}
+            slopes = (before * after) * (on.to(x.dtype) * 2.0 - 1.0) * half_res.unsqueeze(-1)
+            weights = before[..., -1] * factors[..., -1]                        # (N, L, C)
+            blend = torch.cat([weights.unsqueeze(-1), slopes], -1)              # (N, L, C, 1 + dim)
+        values = self._corner_values(index)                                     # (N, L, C, F)
+        # Σ_c over the corners as one broadcast product and sum: einsum would make thousands of tiny bmm's
+        both = (blend.unsqueeze(-2) * values.unsqueeze(-1)).sum(2)              # (N, L, F, 1 + dim)
+        n = x.shape[0]
+        return both[..., 0].reshape(n, -1), both[..., 1:].reshape(n, -1, self.dim)
