@@ -57,8 +57,9 @@ def test_reconstruction_mesh_and_target_pictures_share_one_view(tmp_path, cap_fi
                        "trainer.max_steps=2", "data.num_samples=64", "data.num_surface_samples=64",
                        "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=1",
                        "evaluation.mass_samples=2048", "evaluation.ucd_samples=2000",
-                       "evaluation.mesh.resolution=24", "evaluation.mesh.method=phase"])
-    train(cfg, out_dir=tmp_path)
+                       "evaluation.mesh.resolution=24", "evaluation.mesh.method=phase",
+                       "data.normalize=auto"])  # the cap's own frame (preset=cpu would normalise it): pictures
+    train(cfg, out_dir=tmp_path)                  # are drawn in model coordinates, compared with the file's below
     assert {"mesh.png", "target.png"} <= set(drawn) and (tmp_path / "target.png").is_file()
     mesh, target = drawn["mesh.png"], drawn["target.png"]
     assert len(mesh["mesh"].faces) > 0

@@ -77,8 +77,9 @@ def table1_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> lis
                  f"{_fmt(r['seconds_ours'])} / {_fmt(r['seconds_baseline'])}",
                  f"{_fmt(r['steps_ours'])} / {_fmt(r['steps_baseline'])}"]
         lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "UCD: mean distance from 100k uniform samples of the target to the learned surface (meshes "
-              "in [-0.5, 0.5]^3). The baseline trains for the wall time of our run on the same category."]
+    lines += ["", "UCD: mean distance from 100k uniform samples of the target to the learned surface, in the "
+              "units of the target's file (the dataset's [-0.5, 0.5]^3 box; ucd_input_units of a run that "
+              "normalised its target). The baseline trains for the wall time of our run on the same category."]
     (out_dir / "table1.md").write_text("\n".join(lines) + "\n")
 
     fig, ax = plt.subplots(figsize=(6, 3.5), dpi=120)
