@@ -7,7 +7,9 @@ Writes ``metrics.json`` (in a folder named after the checkpoint beside it, or ``
   ``mass_area`` (``mass_length`` in 2D) with its standard error;
 - 3D: ``mesh_area``, ``mesh_faces``, ``boundary_error`` of the extracted surface (or of ``mesh=``);
 - with ``target=``: ``ucd`` = E_{y ~ U(target)} dist(y, mesh) (the paper's UCD, ``samples`` uniform points),
-  ``ucd_reverse`` (mesh → target) and ``chamfer`` (their mean), in the meshes' units.
+  ``ucd_reverse`` (mesh → target) and ``chamfer`` (their mean), in the meshes' units; a reconstruction that
+  normalised its target (data.normalize) is compared in its own frame, as its run was, and ``ucd_input_units``
+  gives the UCD in the target file's units.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ import logging
 from dataclasses import dataclass
 
 import hydra
+import numpy as np
+import trimesh
 from omegaconf import MISSING, DictConfig
 
 from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
@@ -101,11 +105,31 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
                 log.warning("The extracted mesh is empty: its distances to the target are undefined.")
                 metrics.update(ucd=None, ucd_reverse=None, chamfer=None)
             else:
+                scale, offset = target_frame(module)
+                if given is None and scale is not None:
+                    # a run that normalised its target meshes in its own frame: the target file moves there,
+                    # so ucd matches the run's metrics.json, and ucd_input_units is in the file's units
+                    target = trimesh.Trimesh((np.asarray(target.vertices) - offset) / scale, target.faces,
+                                             process=False)
                 ucd = unidirectional_chamfer(target, mesh, samples, seed)
                 reverse = unidirectional_chamfer(mesh, target, samples, seed)
                 metrics.update(ucd=ucd, ucd_reverse=reverse, chamfer=0.5 * (ucd + reverse))
+                if given is None and scale is not None:
+                    metrics["ucd_input_units"] = ucd * scale
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
+
+
+def target_frame(module) -> tuple[float | None, np.ndarray | None]:
+    """(scale, offset) of a reconstruction whose target was normalised (input = model·scale + offset), else
+    (None, None): then the model's frame is the target file's."""
+    scale, offset = getattr(module, "target_scale", None), getattr(module, "target_offset", None)
+    if scale is None or offset is None:
+        return None, None
+    scale, offset = float(scale), offset.detach().cpu().double().numpy()
+    if scale == 1.0 and not np.abs(offset).max() > 0:
+        return None, None
+    return scale, offset
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="evaluate")
