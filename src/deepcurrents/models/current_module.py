@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +11,7 @@ import torch
 import trimesh
 
 from deepcurrents.errors import ConfigError
+from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method
 from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_to_area
 from deepcurrents.eval.plots import plot_current_2d
@@ -39,7 +41,8 @@ def input_frame(boundary: dict) -> tuple[float, np.ndarray] | None:
 
 # metrics that are lengths or areas, and their power of the scale
 _LENGTH_KEYS = {"mass_area": 2, "mass_area_stderr": 2, "mass_area_lower": 2, "mass_area_mc": 2,
-                "mass_area_mc_stderr": 2, "mesh_area": 2, "boundary_error": 1}
+                "mass_area_mc_stderr": 2, "mass_area_sharpened": 2, "mass_area_sharpened_stderr": 2,
+                "mesh_area": 2, "boundary_error": 1}
 
 
 def input_mesh(mesh: trimesh.Trimesh, frame: tuple[float, np.ndarray]) -> trimesh.Trimesh:
@@ -138,6 +141,7 @@ class CurrentModule(DeepCurrentsModule):
             export = input_mesh(result.mesh, frame) if frame is not None else None
             title = f"{self.hparams.boundary.get('name', '')}: area {result.mesh.area * (frame or (1.0,))[0]**2:.4g}"
             metrics.update(self.write_mesh(out_dir, result, loops, title, export=export))
+            metrics.update(self.sharpened_bound(result))
             if frame is not None:
                 metrics = metrics_in_input_units(metrics, *frame)
         else:
@@ -151,6 +155,19 @@ class CurrentModule(DeepCurrentsModule):
             np.savez(out_dir / "curve.npz", *curves)
             self._plot_2d(curves, out_dir / "current.png")
         return self.write_metrics(out_dir, metrics)
+
+    def sharpened_bound(self, result) -> dict[str, Any]:
+        """``mass_area_sharpened``: the mass bound of the current concentrated onto its meshed phase level
+        (``eval.certificate``; again an upper bound of the minimal area), for phase meshes of a Euclidean
+        current. ``evaluation.sharpened``: {kappa, samples}; samples 0 skips it."""
+        opts = dict(self.evaluation.get("sharpened") or {})
+        samples = int(opts.get("samples", 1 << 18))
+        if samples <= 0 or self.mesh_options().get("method") != "phase" or len(result.mesh.faces) == 0:
+            return {}
+        kappa = float(opts.get("kappa", 16.0))
+        bound, stderr = sharpened_mass_estimate(self.current, result.mesh, result.level + math.pi, kappa=kappa,
+                                                num_samples=samples, seed=int(self.evaluation.get("seed", 12345)))
+        return {"mass_area_sharpened": bound, "mass_area_sharpened_stderr": stderr, "sharpened_kappa": kappa}
 
     def mesh_options(self) -> dict[str, Any]:
         """Keyword arguments of ``extract_surface`` for the final mesh (reconstruction adds ``bounds``)."""

@@ -1,0 +1,66 @@
+"""The sharpened area bound (eval.certificate) against independent truth: κ = 0 is the plain uniform mass
+bound; on a planar circle the phase mesh of α alone is the flat disk (a level set of the solid angle), so the
+bound concentrated on it must come down from the plain bound (2.3× the disk) to the disk's exact area πR²,
+never below it; the von Mises weight has mean 1 over a turn (quadrature)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from deepcurrents.eval.certificate import mesh_cells, sharpened_mass_estimate, von_mises_weight
+from deepcurrents.eval.meshing import extract_surface
+from deepcurrents.eval.metrics import mass_estimate, mass_to_area
+from deepcurrents.geometry import circle
+from deepcurrents.nn import NeuralCurrent
+
+R = 0.5
+
+
+@pytest.fixture(scope="module")
+def untrained():
+    """f ≡ const (zero-initialised output): ω = alpha_scale·α, and its phase mesh (the disk)."""
+    torch.manual_seed(0)
+    current = NeuralCurrent(3, loops=[torch.tensor(circle(R, n=128)).float()], num_frequencies=8, width=8, depth=1)
+    result = extract_surface(current, resolution=40)
+    return current, result
+
+
+@pytest.mark.parametrize("kappa", [0.5, 4.0, 30.0])
+def test_von_mises_weight_has_mean_one_over_a_turn(kappa):
+    phase = torch.linspace(0.0, 2.0 * math.pi, 20001, dtype=torch.float64)[:-1]
+    assert float(von_mises_weight(phase, 1.3, kappa).mean()) == pytest.approx(1.0, rel=1e-9)
+
+
+def test_mesh_cells_are_a_distribution_on_the_mesh():
+    import trimesh
+
+    square = trimesh.Trimesh([[-0.5, -0.5, 0.01], [0.5, -0.5, 0.01], [0.5, 0.5, 0.01], [-0.5, 0.5, 0.01]],
+                             [[0, 1, 2], [0, 2, 3]])
+    p = mesh_cells(square, 8, spread=0).reshape(8, 8, 8)
+    assert p.sum() == pytest.approx(1.0)
+    assert p[:, :, 4].sum() == pytest.approx(1.0)      # z = 0.01 lies in the cells 4 of 8 along z
+
+
+def test_kappa_zero_is_the_plain_mass_bound(untrained):
+    current, result = untrained
+    plain, plain_err = mass_estimate(current, 1 << 16, seed=3)
+    plain_area = mass_to_area(plain, 3, current.alpha_scale)
+    bound, err = sharpened_mass_estimate(current, result.mesh, result.level + math.pi, kappa=0.0,
+                                         num_samples=1 << 16, seed=4)
+    both = math.hypot(err, mass_to_area(plain_err, 3, current.alpha_scale))
+    assert abs(bound - plain_area) < 4 * both
+    assert plain_area > 2.0 * math.pi * R**2             # α alone is far from the minimal current
+
+
+def test_concentrated_on_the_disk_it_certifies_the_disk_area(untrained):
+    current, result = untrained
+    disk = math.pi * R**2
+    assert result.mesh.area == pytest.approx(disk, rel=0.02)
+    bound, err = sharpened_mass_estimate(current, result.mesh, result.level + math.pi, kappa=30.0,
+                                         num_samples=1 << 16, seed=5)
+    assert err < 0.02 * disk
+    assert bound > disk - 4 * err                        # an upper bound of the minimal area …
+    assert bound < disk * 1.03 + 4 * err                 # … and, concentrated on the disk, a tight one
+    assert np.isfinite(bound)
