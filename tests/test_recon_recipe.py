@@ -31,11 +31,13 @@ def test_cpu_preset_normalises_the_target_and_paper_keeps_the_authors_frame(expe
 def test_table1_compares_ucds_in_the_target_files_units():
     """A normalised run's ucd is in its own frame; the table takes ucd_input_units when there is one."""
     results = [
-        {"name": "ours_hand", "metrics": {"ucd": 0.008, "ucd_input_units": 0.002, "train_seconds": 10.0}},
-        {"name": "baseline_hand", "metrics": {"ucd": 0.003, "train_seconds": 10.0}},
+        {"name": "ours_hand", "metrics": {"ucd": 0.008, "ucd_input_units": 0.002, "ucd_reverse": 0.004,
+                                          "ucd_reverse_input_units": 0.001, "train_seconds": 10.0}},
+        {"name": "baseline_hand", "metrics": {"ucd": 0.003, "ucd_reverse": 0.005, "train_seconds": 10.0}},
     ]
     (row,) = table1_rows(results)
     assert row["ucd_ours"] == 0.002 and row["ucd_baseline"] == 0.003
+    assert row["ucd_reverse_ours"] == 0.001 and row["ucd_reverse_baseline"] == 0.005
 
 
 def test_baseline_reports_its_ucd_in_the_target_files_units(tmp_path, parts_root):
@@ -46,4 +48,5 @@ def test_baseline_reports_its_ucd_in_the_target_files_units(tmp_path, parts_root
     metrics = train(cfg, out_dir=tmp_path / "run")
     assert datamodule.scale != 1.0
     assert metrics["ucd_input_units"] == pytest.approx(metrics["ucd"] * datamodule.scale, rel=1e-12)
+    assert metrics["ucd_reverse_input_units"] == pytest.approx(metrics["ucd_reverse"] * datamodule.scale, rel=1e-12)
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["ucd_input_units"] > 0

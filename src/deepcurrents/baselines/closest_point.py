@@ -125,5 +125,6 @@ class ClosestPointModule(DeepCurrentsModule):
         scale = float(self.target_scale)
         if scale != 1.0:  # a normalised target (data.normalize): the UCD in the target file's units as well
             metrics["ucd_input_units"] = ucd * scale
+            metrics["ucd_reverse_input_units"] = reverse * scale
         trimesh.PointCloud(TargetGeometry.to_input(self, pred)).export(out_dir / "points.ply")
         return self.write_metrics(out_dir, metrics)

@@ -166,6 +166,7 @@ class ReconstructionModule(CurrentModule):
         scale = float(self.target_scale)
         if scale != 1.0 and metrics["ucd"] is not None:
             metrics["ucd_input_units"] = metrics["ucd"] * scale
+            metrics["ucd_reverse_input_units"] = metrics["ucd_reverse"] * scale
         if scale != 1.0 or float(self.target_offset.abs().max()) > 0:
             # the mesh and Γ in the input's coordinates, so that they compare with the user's file
             trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
