@@ -201,7 +201,12 @@ def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> 
         result = extract_surface(current, **opts)
     out["mesh_seconds"] = time.perf_counter() - t
     out["mesh_area"] = float(result.mesh.area)
-    for key in ("mass_2^20_seconds", "mass_early_seconds", "mesh_seconds"):
+    t = time.perf_counter()
+    sharp = cfg.evaluation.sharpened
+    out["sharpened_area"], out["sharpened_stderr"] = sharpened_mass_estimate(
+        current, result.mesh, result.level + math.pi, kappa=float(sharp.kappa), num_samples=int(sharp.samples))
+    out["sharpened_seconds"] = time.perf_counter() - t
+    for key in ("mass_2^20_seconds", "mass_early_seconds", "mesh_seconds", "sharpened_seconds"):
         out[key.replace("seconds", "per_train")] = out[key] / train
     return out
 

@@ -161,7 +161,7 @@ class CurrentModule(DeepCurrentsModule):
         (``eval.certificate``; again an upper bound of the minimal area), for phase meshes of a Euclidean
         current. ``evaluation.sharpened``: {kappa, samples}; samples 0 skips it."""
         opts = dict(self.evaluation.get("sharpened") or {})
-        samples = int(opts.get("samples", 1 << 18))
+        samples = int(opts.get("samples", 1 << 17))
         if samples <= 0 or self.mesh_options().get("method") != "phase" or len(result.mesh.faces) == 0:
             return {}
         kappa = float(opts.get("kappa", 16.0))
