@@ -429,7 +429,7 @@ def main() -> None:
                 print(f"  {name:12s} {c * 1e3:8.1f} ms  ({c / base:.2f}× {args.recipes[0]})")
             return
         order = list(args.recipes)
-        for ci, name in enumerate([*args.curves, *args.heldout]):
+        for ci, name in enumerate(dict.fromkeys([*args.curves, *args.heldout])):  # a curve named twice runs once
             if name not in known:
                 raise SystemExit(f"unknown curve {name!r}; known: {sorted(known)}")
             path, exact = known[name]
