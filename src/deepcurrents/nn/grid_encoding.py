@@ -37,9 +37,9 @@ class MultiresGrid(nn.Module):
                             ("finest_resolution", finest_resolution), ("features", features),
                             ("table_size", table_size)):
             if int(value) < 1:
-                raise ConfigError(f"model.grid.{name}={value} must be a positive integer.")
+                raise ConfigError(f"model.grid_encoding.{name}={value} must be a positive integer.")
         if finest_resolution < base_resolution:
-            raise ConfigError(f"model.grid.finest_resolution={finest_resolution} must be at least "
+            raise ConfigError(f"model.grid_encoding.finest_resolution={finest_resolution} must be at least "
                               f"base_resolution={base_resolution}.")
         self.dim, self.levels, self.features = dim, int(levels), int(features)
         growth = (finest_resolution / base_resolution) ** (1.0 / max(levels - 1, 1))
