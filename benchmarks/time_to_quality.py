@@ -45,6 +45,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 
+from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.metrics import mass_to_area
@@ -204,7 +205,8 @@ def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> 
     t = time.perf_counter()
     sharp = cfg.evaluation.sharpened
     out["sharpened_area"], out["sharpened_stderr"] = sharpened_mass_estimate(
-        current, result.mesh, result.level + math.pi, kappa=float(sharp.kappa), num_samples=int(sharp.samples))
+        current, mesh_sampler(result.mesh), result.level + math.pi, kappa=float(sharp.kappa),
+        num_samples=int(sharp.samples))
     out["sharpened_seconds"] = time.perf_counter() - t
     for key in ("mass_2^20_seconds", "mass_early_seconds", "mesh_seconds", "sharpened_seconds"):
         out[key.replace("seconds", "per_train")] = out[key] / train
@@ -317,8 +319,8 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
             row.update(mesh_area=float(result.mesh.area), mesh_error=float(result.mesh.area) / exact - 1.0,
                        mesh_seconds=time.perf_counter() - t)
             # the same current concentrated onto its meshed level (eval.certificate): again an upper bound
-            sharp, sharp_err = sharpened_mass_estimate(current, result.mesh, result.level + math.pi, kappa=16.0,
-                                                       num_samples=1 << 18)
+            sharp, sharp_err = sharpened_mass_estimate(current, mesh_sampler(result.mesh), result.level + math.pi,
+                                                       kappa=16.0, num_samples=1 << 18)
             row.update(sharpened_ratio=sharp / exact, sharpened_ratio_stderr=sharp_err / exact)
         rows.append(row)
     return rows

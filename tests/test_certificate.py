@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from deepcurrents.eval.certificate import mesh_cells, sharpened_mass_estimate, von_mises_weight
+from deepcurrents.data.sampling import mesh_cell_scores, mesh_sampler
+from deepcurrents.eval.certificate import sharpened_mass_estimate, von_mises_weight
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import circle
@@ -38,7 +39,7 @@ def test_mesh_cells_are_a_distribution_on_the_mesh():
 
     square = trimesh.Trimesh([[-0.5, -0.5, 0.01], [0.5, -0.5, 0.01], [0.5, 0.5, 0.01], [-0.5, 0.5, 0.01]],
                              [[0, 1, 2], [0, 2, 3]])
-    p = mesh_cells(square, 8, spread=0).reshape(8, 8, 8)
+    p = mesh_cell_scores(square, 8, spread=0).reshape(8, 8, 8)
     assert p.sum() == pytest.approx(1.0)
     assert p[:, :, 4].sum() == pytest.approx(1.0)      # z = 0.01 lies in the cells 4 of 8 along z
 
@@ -47,8 +48,8 @@ def test_kappa_zero_is_the_plain_mass_bound(untrained):
     current, result = untrained
     plain, plain_err = mass_estimate(current, 1 << 16, seed=3)
     plain_area = mass_to_area(plain, 3, current.alpha_scale)
-    bound, err = sharpened_mass_estimate(current, result.mesh, result.level + math.pi, kappa=0.0,
-                                         num_samples=1 << 16, seed=4)
+    bound, err = sharpened_mass_estimate(current, mesh_sampler(result.mesh, seed=4), result.level + math.pi,
+                                         kappa=0.0, num_samples=1 << 16)
     both = math.hypot(err, mass_to_area(plain_err, 3, current.alpha_scale))
     assert abs(bound - plain_area) < 4 * both
     assert plain_area > 2.0 * math.pi * R**2             # α alone is far from the minimal current
@@ -58,8 +59,8 @@ def test_concentrated_on_the_disk_it_certifies_the_disk_area(untrained):
     current, result = untrained
     disk = math.pi * R**2
     assert result.mesh.area == pytest.approx(disk, rel=0.02)
-    bound, err = sharpened_mass_estimate(current, result.mesh, result.level + math.pi, kappa=30.0,
-                                         num_samples=1 << 16, seed=5)
+    bound, err = sharpened_mass_estimate(current, mesh_sampler(result.mesh, seed=5), result.level + math.pi,
+                                         kappa=30.0, num_samples=1 << 16)
     assert err < 0.02 * disk
     assert bound > disk - 4 * err                        # an upper bound of the minimal area …
     assert bound < disk * 1.03 + 4 * err                 # … and, concentrated on the disk, a tight one

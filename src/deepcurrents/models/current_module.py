@@ -10,6 +10,7 @@ import numpy as np
 import torch
 import trimesh
 
+from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method
@@ -165,8 +166,9 @@ class CurrentModule(DeepCurrentsModule):
         if samples <= 0 or self.mesh_options().get("method") != "phase" or len(result.mesh.faces) == 0:
             return {}
         kappa = float(opts.get("kappa", 16.0))
-        bound, stderr = sharpened_mass_estimate(self.current, result.mesh, result.level + math.pi, kappa=kappa,
-                                                num_samples=samples, seed=int(self.evaluation.get("seed", 12345)))
+        sampler = mesh_sampler(result.mesh, seed=int(self.evaluation.get("seed", 12345)))
+        bound, stderr = sharpened_mass_estimate(self.current, sampler, result.level + math.pi, kappa=kappa,
+                                                num_samples=samples)
         return {"mass_area_sharpened": bound, "mass_area_sharpened_stderr": stderr, "sharpened_kappa": kappa}
 
     def mesh_options(self) -> dict[str, Any]:
