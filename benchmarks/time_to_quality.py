@@ -15,8 +15,10 @@ region. Afterwards, outside it, every copy is scored:
 - with ``--mesh``, the final copy's phase mesh area against the exact area.
 
 Curves with exact minimal areas (polygon areas for planar polygons, closed forms otherwise):
-``circle05`` (R = 0.5, 200 vertices), ``tilted_square`` and ``ellipse`` (examples/curves), and the held-out
-curves, never used for tuning the fast recipe: ``enneper05`` (Enneper's surface cut at r = 0.5, non-planar,
+``circle05`` (R = 0.5, 200 vertices), ``tilted_square`` and ``ellipse`` (examples/curves), ``catenoid`` (two
+coaxial circles R = 0.5 at z = ±0.2, opposite orientations; the catenoid's πc(2h + c·sinh(2h/c)) = 1.2209, two
+loops and not planar), ``trefoil`` (no closed form: the issue's reference 0.737, the grid method's fine mesh), and
+the held-out curves, never used for tuning the fast recipe: ``enneper05`` (Enneper's surface cut at r = 0.5, non-planar,
 area π(r² + r⁴ + r⁶/3)) and ``tilted_circle04`` (R = 0.4, off-centre, normal (1, 2, 2)).
 
 Writes ``benchmarks/results/time_to_quality.csv`` (one row per copy), ``time_to_quality.png`` (mass_area /
@@ -78,6 +80,26 @@ def enneper(r: float, n: int = 200) -> np.ndarray:
                      r**2 * np.cos(2 * t)], -1)
 
 
+def catenoid_neck(radius: float, h: float) -> float:
+    """The stable catenoid's neck c through circles of ``radius`` at z = ±h: the larger root of c·cosh(h/c) = R."""
+    from scipy.optimize import brentq
+
+    g = lambda c: c * math.cosh(h / c) - radius  # noqa: E731
+    cmin = h / 1.19967864  # c·cosh(h/c) is smallest at h/c = 1.1997 (the catenoid's existence limit)
+    return brentq(g, cmin, radius)
+
+
+def write_obj_loops(path: Path, loops: list[np.ndarray]) -> None:
+    """Closed polylines as an .obj (``v`` vertices, one ``l`` element per loop)."""
+    lines, base = [], 1
+    for loop in loops:
+        lines += [f"v {x:.9f} {y:.9f} {z:.9f}" for x, y, z in loop]
+    for loop in loops:
+        lines.append("l " + " ".join(str(base + i) for i in [*range(len(loop)), 0]))
+        base += len(loop)
+    path.write_text("\n".join(lines) + "\n")
+
+
 def curves(tmp: Path) -> dict[str, tuple[str, float]]:
     """name → (curve file, exact minimal area)."""
     out: dict[str, tuple[str, float]] = {}
@@ -91,6 +113,14 @@ def curves(tmp: Path) -> dict[str, tuple[str, float]]:
     e = enneper(0.5)
     np.savetxt(tmp / "enneper05.txt", e)
     out["enneper05"] = (str(tmp / "enneper05.txt"), math.pi * (0.5**2 + 0.5**4 + 0.5**6 / 3))
+    # two coaxial circles R = 0.5 at z = ±0.2, opposite orientations: the catenoid r = c·cosh(z/c) through them
+    # (c = catenoid_neck(0.5, 0.2)), area πc(2h + c·sinh(2h/c)) = 1.2212, below the two disks' 2πR² = 1.571
+    top, bottom = circle(0.5, center=(0, 0, 0.2), n=200), circle(0.5, center=(0, 0, -0.2), n=200)[::-1]
+    write_obj_loops(tmp / "catenoid.obj", [top, bottom])
+    c = catenoid_neck(0.5, 0.2)
+    out["catenoid"] = (str(tmp / "catenoid.obj"), math.pi * c * (0.4 + c * math.sinh(0.4 / c)))
+    # no closed form: the issue's reference, the grid method's mesh at a fine grid (≈ 0.737)
+    out["trefoil"] = ("trefoil", 0.737)
     tc = circle(0.4, center=(0.1, -0.15, 0.05), normal=(1.0, 2.0, 2.0), n=200)
     np.savetxt(tmp / "tilted_circle04.txt", tc)
     out["tilted_circle04"] = (str(tmp / "tilted_circle04.txt"), polygon_area(tc))
