@@ -1,6 +1,7 @@
 """Shapes held out of a family's training (data.held_out): the split, the autodecoder's test-time latent fit
 (only z moves, the loss drops), the final evaluation's ucd_held_out_mean; and the optional interpolation
-regulariser (model.interpolation_weight): its loss is the Euclidean mass of the blended shape."""
+regulariser (model.interpolation_weight, interpolation_mix): its loss is the Euclidean mass of the blended
+shape; and the training shapes' own Euclidean mass term (model.mass_weight)."""
 
 from __future__ import annotations
 
@@ -120,6 +121,52 @@ def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
     assert module.interpolation_loss(z, padded, short, 10) is None
     with pytest.raises(ConfigError, match="interpolation_weight"):
         AutodecoderModule(**{**module.hparams, "interpolation_weight": -1.0})
+
+
+def test_independent_mix_blends_code_and_boundary_apart():
+    """interpolation_mix=independent: the pair's code at t and its boundary at another s (the grid's
+    off-diagonal members), checked against the member (z_t, Γ_s) built by hand."""
+    module = small_module()
+    module.hparams.interpolation_mix = "independent"
+    module.train()
+    rims = [torch.as_tensor(disc_mesh(SHAPES[k], radius=0.25).vertices[-24:], dtype=torch.float32)
+            for k in ("000_cap", "001_saddle")]
+    padded = torch.stack(rims)[:, None]  # (2, 1, 24, 3)
+    mask = torch.ones(2, 1, 24, dtype=torch.bool)
+    z = module.family.latents.weight[:2].detach()
+    torch.manual_seed(5)
+    got = module.interpolation_loss(z, padded, mask, 200)
+    torch.manual_seed(5)
+    t, s = torch.rand(2, 1), torch.rand(2, 1)
+    x = torch.rand(2, 200, 3) * 2 - 1
+    assert not torch.allclose(t, s)
+    omegas = []
+    for k, (i, j) in enumerate(((0, 1), (1, 0))):  # each shape with the next one, cyclically
+        zk = (1 - t[k]) * z[i] + t[k] * z[j]
+        loop = (1 - s[k]) * rims[i] + s[k] * rims[j]
+        omegas.append(module.member(zk, [loop.numpy()])(x[k], create_graph=False)[1])
+    assert float(got.detach()) == pytest.approx(float(current_loss(torch.cat(omegas))), rel=1e-5)
+    with pytest.raises(ConfigError, match="model.interpolation_mix='diagonal'"):
+        AutodecoderModule(**{**module.hparams, "interpolation_mix": "diagonal"})
+
+
+def test_mass_weight_adds_the_shapes_euclidean_mass():
+    """model.mass_weight=λ: the loss grows by λ·mean_x |ω(x)| (B = I) at the batch's own samples, computed
+    here through the single-member view; the current loss (metric B_x) is unchanged."""
+    module = small_module()
+    mesh = disc_mesh(SHAPES["000_cap"], radius=0.25)
+    batch = fixed_batch(mesh)
+    plain = module.compute_losses(batch)
+    module.hparams.mass_weight = 0.05
+    weighted = module.compute_losses(batch)
+    omega = module.member(module.latent(0), [mesh.vertices[-24:]])(batch["x"][0], create_graph=False)[1]
+    mass = float(omega.detach().norm(dim=-1).mean())
+    assert float(weighted["mass_loss"].detach()) == pytest.approx(mass, rel=1e-5)
+    assert float(weighted["current_loss"].detach()) == pytest.approx(float(plain["current_loss"].detach()), rel=1e-6)
+    assert float((weighted["loss"] - plain["loss"]).detach()) == pytest.approx(0.05 * mass, rel=1e-4)
+    assert "mass_loss" not in plain
+    with pytest.raises(ConfigError, match="model.mass_weight=-1"):
+        AutodecoderModule(**{**module.hparams, "mass_weight": -1.0})
 
 
 @pytest.mark.slow

@@ -39,6 +39,10 @@ log = logging.getLogger(__name__)
 FAMILY_KEY = "deepcurrents_family"
 
 
+# how the interpolation regulariser blends a pair's latent codes and boundaries (see AutodecoderModule)
+INTERPOLATION_MIXES = ("shared", "independent")
+
+
 class CheckpointMismatchError(UserInputError):
     """A checkpoint whose family (shapes, loops) is not the one configured."""
 
@@ -53,9 +57,16 @@ class AutodecoderModule(DeepCurrentsModule):
         optim: {"lr", "step_size", "gamma"}.
         latent_dim, boundary_dim, latent_std: sizes of z and z_Γ (paper 256, 256) and the codes' initial std.
         surface_weight, surface_margin: weight and δ of the surface hinge loss (paper: 1, 0.01).
+        mass_weight: λ of a Euclidean mass term on the training shapes, λ E_x|ω(x)| (B = I) at the same uniform
+            samples as the current loss (beyond the paper; 0 = the paper). The reconstruction metric
+            B_x = w_x (I − n nᵀ) leaves ω's component along the closest target normal free everywhere off Σ,
+            so a current may keep a haze there that costs nothing; a small λ makes it cost.
         interpolation_weight: weight of the mass loss (Euclidean metric, B = I) of random interpolants between
-            the batch's shapes (latent codes and boundaries blended with one t ~ U[0, 1] per pair), so what lies
-            between training shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
+            the batch's shapes (latent codes and boundaries blended per pair), so what lies between training
+            shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
+        interpolation_mix: how a pair's code and boundary are blended: "shared" (one t ~ U[0, 1] for both, the
+            diagonal of an interpolation grid) or "independent" (t_z, t_Γ ~ U[0, 1] apart, so the code of one
+            shape with the boundary of another, the grid's off-diagonal members, is regularised too).
         latent_fit: {"steps", "lr", "num_samples", "num_surface_samples"} of ``fit_latent`` for the shapes held
             out of training (``data.held_out``).
         evaluation: the run's `evaluation` node: {"mesh": extract_surface kwargs (its "padding" sizes the meshed
@@ -81,7 +92,9 @@ class AutodecoderModule(DeepCurrentsModule):
         latent_std: float = 0.1,
         surface_weight: float = 1.0,
         surface_margin: float = 0.01,
+        mass_weight: float = 0.0,
         interpolation_weight: float = 0.0,
+        interpolation_mix: str = "shared",
         latent_fit: dict | None = None,
         evaluation: dict | None = None,
         loop_lengths: Sequence[Sequence[int]] | None = None,
@@ -100,6 +113,11 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.surface_weight={surface_weight} must be non-negative.")
         if not interpolation_weight >= 0:
             raise ConfigError(f"model.interpolation_weight={interpolation_weight} must be non-negative.")
+        if not mass_weight >= 0:
+            raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
+        if interpolation_mix not in INTERPOLATION_MIXES:
+            raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
+                              f"{', '.join(INTERPOLATION_MIXES)}.")
         self.save_hyperparameters(ignore=["train_loops", "train_bounds"])
         self.evaluation = dict(evaluation or {})
         self.family = FamilyCurrent(num_shapes, num_loops, latent_dim, boundary_dim, latent_std=latent_std,
@@ -218,8 +236,8 @@ class AutodecoderModule(DeepCurrentsModule):
 
     # --------------------------------------------------------------------------------------- training
     def compute_losses(self, batch: dict[str, torch.Tensor], z: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """Current loss (metric B_x) and surface loss over a batch of S shapes × N points, and the
-        interpolants' mass loss when ``interpolation_weight`` > 0.
+        """Current loss (metric B_x) and surface loss over a batch of S shapes × N points, the shapes' own
+        Euclidean mass when ``mass_weight`` > 0, and the interpolants' mass loss when ``interpolation_weight`` > 0.
 
         z: (S, latent_dim) latent codes of the batch's shapes (default: the training codes of
         ``batch["index"]``; the latent fit of a held-out shape passes its own)."""
@@ -229,6 +247,9 @@ class AutodecoderModule(DeepCurrentsModule):
         _, omega = self.family(batch["x"], code, loops, mask, create_graph=True)
         losses = {"current_loss": current_loss(omega.flatten(0, 1), batch["metric"].flatten(0, 1))}
         loss = losses["current_loss"]
+        if self.hparams.mass_weight > 0:  # the samples are uniform in U: E|ω| is the mass
+            losses["mass_loss"] = current_loss(omega.flatten(0, 1))
+            loss = loss + self.hparams.mass_weight * losses["mass_loss"]
         if "surface_points" in batch and self.hparams.surface_weight > 0:
             offset = batch["epsilon"].unsqueeze(-1) * batch["surface_normals"]
             y = batch["surface_points"]
@@ -246,8 +267,11 @@ class AutodecoderModule(DeepCurrentsModule):
     def interpolation_loss(self, z: torch.Tensor, loops: torch.Tensor, mask: torch.Tensor,
                            num_points: int) -> torch.Tensor | None:
         """E_x |ω_t(x)| (B = I, x ~ U([-1, 1]^3)) of interpolants between each shape of the batch and the
-        next one (a cyclic shift): z_t = (1 − t) z_i + t z_j, Γ_t = (1 − t) Γ_i + t Γ_j vertex by vertex, one
-        t ~ U[0, 1] per pair. Pairs whose loops differ in vertex counts are skipped (None if none is left).
+        next one (a cyclic shift; batches come in random order, so every pair turns up): z_t = (1 − t) z_i + t z_j,
+        Γ_s = (1 − s) Γ_i + s Γ_j vertex by vertex, with s = t ~ U[0, 1] per pair (``interpolation_mix`` =
+        "shared") or s, t ~ U[0, 1] drawn apart ("independent": the code of one shape with the boundary of
+        another, as off the diagonal of an interpolation grid). Pairs whose loops differ in vertex counts are
+        skipped (None if none is left).
 
         z (S, latent_dim), loops (S, B, L, 3), mask (S, B, L) → scalar."""
         other = torch.roll(torch.arange(len(z), device=z.device), -1)
@@ -256,8 +280,10 @@ class AutodecoderModule(DeepCurrentsModule):
             return None
         i, j = same.nonzero().squeeze(1), other[same]
         t = torch.rand(len(i), 1, device=z.device, dtype=z.dtype)
+        s = torch.rand(len(i), 1, device=z.device, dtype=z.dtype) \
+            if self.hparams.interpolation_mix == "independent" else t
         z_t = (1 - t) * z[i] + t * z[j]
-        loops_t = (1 - t[:, :, None, None]) * loops[i] + t[:, :, None, None] * loops[j]
+        loops_t = (1 - s[:, :, None, None]) * loops[i] + s[:, :, None, None] * loops[j]
         code = self.family.code(z_t, loops_t, mask[i])
         x = torch.rand(len(i), num_points, 3, device=z.device, dtype=loops.dtype) * 2 - 1
         _, omega = self.family(x, code, loops_t, mask[i], create_graph=True)
