@@ -275,14 +275,28 @@ def test_phase_mesh_of_an_untrained_circle_is_the_disk():
                                              rel=0.01)
 
 
-def test_grid_phase_matches_the_exact_phase():
-    """The current's phase on a meshing grid (network and Ω exact only where needed) agrees with the phase
-    evaluated at every node: e^{iφ} within 0.1 rad (0.002 on average), for a current whose f varies (a
-    perturbed output layer). A phase error ε moves a sheet of jump width w by about εw/π, and the Newton steps
-    after marching cubes use the exact phase."""
+def _level_cells_of(rel, shape):
+    """Fine cells where marching cubes makes faces of the phase mesh: sin(φ − θ) changes sign over the
+    corners and cos(φ − θ) < 0 at one of them. rel (G0·G1·G2,) = φ − θ → (G0 − 1, G1 − 1, G2 − 1) bool."""
     import numpy as np
 
-    from deepcurrents.eval.meshing import current_phase
+    s, c = np.sin(rel).reshape(shape), np.cos(rel).reshape(shape)
+    cell = tuple(n - 1 for n in shape)
+    corners = [tuple(slice(k, k + n) for k, n in zip(corner, cell, strict=True)) for corner in np.ndindex(2, 2, 2)]
+    pos = np.any([s[k] > 0 for k in corners], 0) & np.any([s[k] <= 0 for k in corners], 0)
+    return pos & np.any([c[k] < 0 for k in corners], 0)
+
+
+@pytest.mark.parametrize("scale", [2e-3, 2e-2])
+def test_narrow_band_phase_is_the_dense_phase_where_the_mesh_is(scale):
+    """The banded phase (network and Ω exact only near Γ and in coarse cells the level θ + π can cross)
+    makes marching cubes find the same cells as the phase evaluated at every node, with the same values
+    at their corners, for a current whose f varies smoothly (f/(2a) of order 1) and one with many turns
+    (order 10); so the mesh is the dense grid's (with the same θ): the same faces and area."""
+    import numpy as np
+
+    from deepcurrents.eval.meshing import current_phase, extract_surface
+    from deepcurrents.eval.meshing import phase as phase_module
     from deepcurrents.eval.meshing.grid_angle import grid_phase
     from deepcurrents.eval.meshing.surface import _grid, region_of_interest
     from deepcurrents.geometry import trefoil
@@ -293,10 +307,24 @@ def test_grid_phase_matches_the_exact_phase():
     current = NeuralCurrent(loops=[torch.as_tensor(loop, dtype=torch.float32)], num_frequencies=16, width=16,
                             depth=2, sigma=1.0)
     with torch.no_grad():
-        current.mlp.net[-1].weight.normal_(0.0, 2e-3)  # f/(2a) of order 1: a visible, smooth phase
+        current.mlp.net[-1].weight.normal_(0.0, scale)
     nodes, shape, _ = _grid(region_of_interest([loop], 0.15), 40)
     x = torch.as_tensor(nodes, dtype=torch.float32)
-    exact = current_phase(current, x)
-    approx = grid_phase(current, x, shape, [loop])
-    err = torch.angle(torch.exp(1j * (exact - approx))).abs()
-    assert float(err.max()) < 0.1 and float(err.mean()) < 2e-3
+    dense = current_phase(current, x).numpy()
+    banded, theta = grid_phase(current, x, shape, [loop])
+    banded = banded.numpy()
+    cells = _level_cells_of(dense - theta, shape)
+    assert cells.sum() > 100
+    np.testing.assert_array_equal(_level_cells_of(banded - theta, shape), cells)
+    at_corners = np.zeros(shape, dtype=bool)
+    for corner in np.ndindex(2, 2, 2):
+        at_corners[tuple(slice(k, k + n - 1) for k, n in zip(corner, shape, strict=True))] |= cells
+    err = np.angle(np.exp(1j * (dense - banded)))[at_corners.reshape(-1)]
+    assert np.abs(err).max() < 1e-9
+    meshes = [extract_surface(current, resolution=40, method="phase").mesh]
+    with pytest.MonkeyPatch.context() as mp:  # every node exact, the same θ
+        mp.setattr(phase_module, "grid_phase",
+                   lambda current, x, *args: (current_phase(current, x), grid_phase(current, x, *args)[1]))
+        meshes.append(extract_surface(current, resolution=40, method="phase").mesh)
+    assert len(meshes[0].faces) == len(meshes[1].faces)
+    assert meshes[0].area == pytest.approx(meshes[1].area, rel=1e-9)

@@ -1,12 +1,14 @@
 """The solid angle Ω_Γ and a current's phase on a meshing grid, exactly where needed and interpolated elsewhere.
 
-The phase method needs Ω at every grid node, and the closed form costs O(vertices) per node: for a
-300-vertex curve on a 128³ grid it was about 90% of the meshing time. The phase only uses e^{iΩ/2}, which is
-smooth everywhere off Γ (Ω jumps by 4π across its branch cut, which e^{iΩ/2} does not see), so it is computed
-exactly on a coarse sub-grid (every ``coarse``-th node) and interpolated trilinearly on the others, except in
-coarse cells near Γ or where e^{iΩ/2} turns fast between corners, which are computed exactly. The
-interpolation error is about h²|∇²Ω|/16 (h the coarse spacing), small where |∇²Ω| ~ 1/r² is small, and the
-Newton steps that follow marching cubes evaluate the exact phase at the mesh's vertices.
+The phase method needs φ = f/(2·alpha_scale) + Ω/2 at every grid node, and the network and Ω's closed form
+(O(vertices) per node) there were most of the meshing time. Both are computed exactly on a coarse sub-grid
+(every ``coarse``-th node); a coarse cell's nodes are then computed exactly only where that matters, and
+e^{i·angle} is interpolated trilinearly on the others. For the phase (``grid_phase``) that is near Γ and in
+the cells that the mesh's level θ + π can cross (``level_cells``): elsewhere no face of the mesh is made,
+whatever the interpolation's error, so the mesh is the one the dense grid gives. For Ω alone
+(``grid_solid_angle``) it is near Γ and where e^{iΩ/2} turns fast between corners (interpolation error about
+h²|∇²Ω|/16, h the coarse spacing). The Newton steps that follow marching cubes evaluate the exact phase at
+the mesh's vertices.
 """
 
 from __future__ import annotations
@@ -15,9 +17,22 @@ from collections.abc import Callable
 
 import numpy as np
 import torch
-from scipy.ndimage import binary_dilation
+from scipy.spatial import cKDTree
 
 from deepcurrents.geometry.biot_savart import solid_angle
+from deepcurrents.geometry.polyline import closed_loop_segments, resample_polyline
+
+
+def phase_from_f(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    """The phase φ = f/(2·alpha_scale) + Ω_Γ/2 (``meshing.phase``) at points x (P, 3) from f already evaluated
+    there (P,) → (P,) float64.
+
+    Ω is summed in float32 (3.4× faster than float64 for 100 vertices, 5× for 300: most of the cost of
+    meshing and of the sharpened bound): its error modulo 4π is below 1.5e-3 rad at random points of a
+    300-vertex trefoil's box (3e-6 median at 1e-3 to 1e-2 from Γ), far below what moves a mesh vertex (a
+    phase error ε moves a sheet of jump width w by εw/2π); the sum with f/(2·alpha_scale) is float64."""
+    omega = solid_angle(x.float(), [lp.to(device=x.device, dtype=torch.float32) for lp in current.loops])
+    return f.double() / (2.0 * current.alpha_scale) + 0.5 * omega.double()
 
 
 def _coarse_index(n: int, step: int) -> np.ndarray:
@@ -58,38 +73,94 @@ def grid_solid_angle(points: torch.Tensor, shape: tuple[int, int, int], loops: l
     def exact(x: torch.Tensor) -> torch.Tensor:
         return torch.cat([solid_angle(c.double(), torch_loops) for c in torch.split(x, chunk_size)])[:, None] / 2
 
-    return 2.0 * banded_angle(points, shape, loops, exact, coarse, near, max_turn)
+    def turning(values: np.ndarray, corners: list[tuple[slice, ...]]) -> np.ndarray:
+        z = np.exp(1j * values[..., 0])
+        cells = np.zeros(values[corners[0]].shape[:-1], dtype=bool)
+        for i, a in enumerate(corners):
+            for b in corners[i + 1:]:
+                cells |= np.abs(np.angle(z[a] * np.conj(z[b]))) > max_turn
+        return cells
+
+    return 2.0 * banded_angle(points, shape, loops, exact, turning, coarse, near)
 
 
 def grid_phase(current, points: torch.Tensor, shape: tuple[int, int, int], loops: list[np.ndarray],
-               coarse: int = 4, near: float = 0.05, max_turn: float = 0.25, max_jump: float = 0.5,
-               chunk_size: int = 1 << 14) -> torch.Tensor:
+               coarse: int = 4, near: float = 0.02, margin: float = 0.25,
+               chunk_size: int = 1 << 14) -> tuple[torch.Tensor, float]:
     """The phase φ = f/(2·alpha_scale) + Ω/2 of a 3D current (meshing.phase) at the nodes of a regular grid,
-    modulo 2π: exact near Γ, where e^{iφ} turns fast, and in coarse cells where f/(2·alpha_scale) changes by
-    more than ``max_jump`` between corners (a sheet of the surface crosses the cell: f jumps there, while
-    e^{iφ} may look the same on both sides); interpolated from the coarse nodes elsewhere, where f and Ω
-    are both smooth. Network and solid angle are then evaluated at a fraction of the nodes.
-    points: (G0·G1·G2, 3) → (G0·G1·G2,) float64."""
-    torch_loops = [torch.as_tensor(lp, dtype=torch.float64, device=points.device) for lp in loops]
+    modulo 2π, exact wherever the mesh is made and interpolated elsewhere.
+
+    The mesh is the level φ ≡ θ + π (θ the off-surface phase), so only the coarse cells that this level can
+    cross need exact values (``level_cells``), and those near Γ. A coarse cell elsewhere is interpolated
+    (trilinearly in e^{iφ}): its corners' phases span less than π without reaching the level, so its
+    interpolated values do not reach it either, and marching cubes finds no part of the mesh there, as on
+    the dense grid (the same faces from the same values; tests/test_time_to_quality.py). Within the smeared
+    jump of a partly trained current this skips the cells at the other levels, which the former test
+    (corners' e^{iφ} differing by more than 0.25 rad) computed: 150k exact nodes instead of 319k of 1.05M
+    for the trained ``make run`` trefoil. θ is the circular mean of φ over every node, as before; the cells
+    are chosen with its value over the coarse nodes, which differs from it by less than the margin (5e-3 rad
+    on a planar circle's thin grid, whose nodes are mostly in the current's smeared jump; 1e-4 on the
+    trefoil; within 1.1e-4 of its value on the dense grid either way).
+    points: (G0·G1·G2, 3) → (φ (G0·G1·G2,) float64 modulo 2π, θ)."""
     two_a = 2.0 * current.alpha_scale
 
     def exact(x: torch.Tensor) -> torch.Tensor:
         parts = []
         for c in torch.split(x, chunk_size):
-            f = current.evaluate(c, chunk_size, omega=False).double() / two_a
-            parts.append(torch.stack([f + 0.5 * solid_angle(c.double(), torch_loops), f], -1))
+            f = current.evaluate(c, chunk_size, omega=False)
+            parts.append(torch.stack([phase_from_f(current, c, f), f.double() / two_a], -1))
         return torch.cat(parts)
 
-    return banded_angle(points, shape, loops, exact, coarse, near, max_turn, max_jump)
+    def mark(values: np.ndarray, corners: list[tuple[slice, ...]]) -> np.ndarray:
+        return level_cells(values, corners, off_surface_phase(values[..., 0]), margin)
+
+    phase = banded_angle(points, shape, loops, exact, mark, coarse, near)
+    return phase, off_surface_phase(phase.cpu().numpy())
+
+
+def off_surface_phase(phase: np.ndarray) -> float:
+    """θ, the circular mean of phases (any shape) sampled on a grid: a current's phase off its surface, where
+    most nodes are."""
+    return float(np.angle(np.exp(1j * phase).mean()))
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """An angle modulo 2π in [−π, π)."""
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def level_cells(values: np.ndarray, corners: list[tuple[slice, ...]], theta: float, margin: float) -> np.ndarray:
+    """Coarse cells that the phase mesh's level θ + π can cross, from the phase at the cells' corners.
+
+    values (C0, C1, C2, 2): φ and f/(2·alpha_scale) at the coarse nodes; corners: the 8 slices of it that
+    give each cell's corners; θ: the off-surface phase. Between two corners φ changes by the change of
+    f/(2·alpha_scale) (the network is continuous: a sheet thinner than the cell shows as a full turn) plus
+    that of Ω/2 wrapped into [−π, π) (exact for corners of a cell that Γ does not pass through or near, which
+    the caller computes anyway), so each cell has its corners' unwrapped phase interval [lo, hi]. It is
+    marked when [lo − m, hi + m] holds the level, m = margin + (hi − lo)/4 (a curved level surface can bulge
+    between corners, by more where φ turns fast), or when hi − lo ≥ π − margin (e^{iφ} interpolated over
+    more than half a turn could reach any phase). → (C0 − 1, C1 − 1, C2 − 1) bool."""
+    phase, f = values[..., 0], values[..., 1]
+    half_omega = phase - f
+    first = corners[0]
+    rel = np.stack([f[c] - f[first] + _wrap(half_omega[c] - half_omega[first]) for c in corners])
+    base = _wrap(phase[first] - theta - np.pi)
+    lo, hi = base + rel.min(0), base + rel.max(0)
+    span = hi - lo
+    m = margin + 0.25 * span
+    reaches = np.floor((hi + m) / (2.0 * np.pi)) >= np.ceil((lo - m) / (2.0 * np.pi))
+    return reaches | (span >= np.pi - margin)
 
 
 def banded_angle(points: torch.Tensor, shape: tuple[int, int, int], loops: list[np.ndarray],
-                 exact: Callable[[torch.Tensor], torch.Tensor], coarse: int, near: float, max_turn: float,
-                 max_jump: float = float("inf")) -> torch.Tensor:
+                 exact: Callable[[torch.Tensor], torch.Tensor],
+                 mark: Callable[[np.ndarray, list[tuple[slice, ...]]], np.ndarray], coarse: int,
+                 near: float) -> torch.Tensor:
     """An angle field on a grid from its exact values at a coarse sub-grid and in the coarse cells that
-    need them (near Γ, fast turning, or a jump of the other columns), trilinear interpolation of e^{i·angle}
-    elsewhere. ``exact(x)`` (N, 3) → (N, k): column 0 the angle, columns 1.. unwrapped quantities whose
-    range over a cell's corners above ``max_jump`` marks it. → (G0·G1·G2,) float64 angle (mod 2π)."""
+    need them (near Γ, and those ``mark`` picks), trilinear interpolation of e^{i·angle} elsewhere.
+    ``exact(x)`` (N, 3) → (N, k): column 0 the angle, other columns what ``mark`` needs;
+    ``mark(values (C0, C1, C2, k), corners)`` → (C0 − 1, C1 − 1, C2 − 1) bool, ``corners`` the 8 slices of
+    the coarse nodes that give each cell's corners. → (G0·G1·G2,) float64 angle (mod 2π)."""
     dev = points.device
     if coarse <= 1 or min(shape) < 3:
         return exact(points)[:, 0]
@@ -97,28 +168,21 @@ def banded_angle(points: torch.Tensor, shape: tuple[int, int, int], loops: list[
     idx = [_coarse_index(n, coarse) for n in shape]
     sub = grid[idx[0]][:, idx[1]][:, :, idx[2]]
     values = exact(sub.reshape(-1, 3)).cpu().numpy().reshape(*(len(i) for i in idx), -1)
-    z = np.exp(1j * values[..., 0])  # continuous wherever the angle is smooth modulo 2π
-    cells = np.zeros(tuple(len(i) - 1 for i in idx), dtype=bool)
-    corners = [tuple(slice(c, c + s) for c, s in zip(corner, cells.shape, strict=True))
+    cell_shape = tuple(len(i) - 1 for i in idx)
+    corners = [tuple(slice(c, c + s) for c, s in zip(corner, cell_shape, strict=True))
                for corner in np.ndindex(2, 2, 2)]
-    for i, a in enumerate(corners):
-        for b in corners[i + 1:]:
-            cells |= np.abs(np.angle(z[a] * np.conj(z[b]))) > max_turn
-    if values.shape[-1] > 1:
-        stacked = np.stack([values[c][..., 1:] for c in corners])
-        cells |= (stacked.max(0) - stacked.min(0)).max(-1) > max_jump
-    origin = grid[0, 0, 0].cpu().numpy().astype(np.float64)
-    spacing = (grid[1, 1, 1].cpu().numpy().astype(np.float64) - origin)
-    samples = np.concatenate([_densify(lp, float(spacing.min())) for lp in loops])
-    node = np.rint((samples - origin) / spacing).astype(int)
-    coarse_cell = np.stack([np.clip(np.searchsorted(i, node[:, a], side="right") - 1, 0, len(i) - 2)
-                            for a, i in enumerate(idx)], -1)
-    near_gamma = np.zeros_like(cells)
-    near_gamma[tuple(coarse_cell.T)] = True
-    reach = max(1, int(np.ceil(near / (coarse * float(spacing.min())))))
-    cells |= binary_dilation(near_gamma, iterations=reach)
+    cells = mark(values, corners)
+    # cells whose centre is within half a diagonal + ``near`` of Γ (at least half a cell, so that Γ does not
+    # pass between two corners of an unmarked cell: their Ω/2 then differs by less than π, as mark assumes)
+    # (distances to points of Γ at most h/4 apart, each within h/8 of the distance to Γ itself)
+    spacing = float(coarse * (grid[1, 1, 1] - grid[0, 0, 0]).min())
+    centres = 0.5 * (sub[:-1, :-1, :-1] + sub[1:, 1:, 1:]).reshape(-1, 3).double().cpu().numpy()
+    reach = spacing * np.sqrt(3.0) / 2 + max(near, 0.5 * spacing)
+    starts, ends, _ = closed_loop_segments(loops)
+    dist, _ = cKDTree(resample_polyline(starts, ends, spacing / 4)).query(centres, distance_upper_bound=2 * reach)
+    cells |= (dist - spacing / 8 < reach).reshape(cells.shape)
     # interpolate e^{i·angle} on every node, then replace the nodes of exact cells
-    fine = z
+    fine = np.exp(1j * values[..., 0])
     for axis, (n, i) in enumerate(zip(shape, idx, strict=True)):
         fine = _lerp_axis(fine, i, n, axis)
     mask = np.zeros(shape, dtype=bool)
@@ -130,14 +194,3 @@ def banded_angle(points: torch.Tensor, shape: tuple[int, int, int], loops: list[
     if bool(flat.any()):
         out[flat] = exact(points[flat])[:, 0]
     return out
-
-
-def _densify(loop: np.ndarray, spacing: float) -> np.ndarray:
-    """Points along a closed polyline no farther apart than ``spacing``. (M, 3) → (K, 3)."""
-    loop = np.asarray(loop, dtype=np.float64)
-    nxt = np.roll(loop, -1, axis=0)
-    out = []
-    for a, b in zip(loop, nxt, strict=True):
-        k = max(1, int(np.ceil(np.linalg.norm(b - a) / spacing)))
-        out.append(a + (b - a) * (np.arange(k)[:, None] / k))
-    return np.concatenate(out)

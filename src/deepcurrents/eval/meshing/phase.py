@@ -3,7 +3,7 @@
 The phase φ = f/(2·alpha_scale) + Ω_Γ/2 of a 3D current is constant off its surface (mod 2π), since there
 ω = ∇f + alpha_scale·∇Ω ≈ 0; across the surface f jumps by ±4π·alpha_scale, so e^{iφ} turns once around
 the circle. Ω is defined modulo 4π, which e^{iφ} does not see: no branch cut. With θ the off-surface value
-of φ (its circular mean over the grid, where most nodes are off the surface), the surface is the zero set
+of φ (its circular mean over the grid's coarse nodes, most of them off the surface), the surface is the zero set
 of sin(φ − θ) where cos(φ − θ) < 0: every sheet, whatever f's offset there (a single level of f misses
 sheets where f's jump does not straddle it).
 """
@@ -14,9 +14,8 @@ import numpy as np
 import torch
 from scipy.ndimage import map_coordinates
 
-from deepcurrents.eval.meshing.grid_angle import grid_phase
+from deepcurrents.eval.meshing.grid_angle import grid_phase, phase_from_f
 from deepcurrents.eval.meshing.method import MeshMethod
-from deepcurrents.geometry.biot_savart import solid_angle
 
 
 def current_phase(current, x: torch.Tensor, chunk_size: int = 1 << 16) -> torch.Tensor:
@@ -26,22 +25,15 @@ def current_phase(current, x: torch.Tensor, chunk_size: int = 1 << 16) -> torch.
                       for chunk in torch.split(x, chunk_size)])
 
 
-def phase_from_f(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
-    """φ at points x (P, 3) from f already evaluated there (P,) → (P,) float64."""
-    omega = solid_angle(x.double(), [lp.to(x.device) for lp in current.loops])
-    return f.double() / (2.0 * current.alpha_scale) + 0.5 * omega
-
-
 class PhaseMethod(MeshMethod):
     """sin(φ − θ) = 0 where cos(φ − θ) < 0; Newton on g = sin(φ − θ), ∇g = cos(φ − θ)·ω/(2·alpha_scale)."""
 
     name = "phase"
 
     def sample(self, points, shape, loops, voxel):
-        # exact near Γ and where a sheet crosses, interpolated elsewhere (meshing.grid_angle): the network and
-        # the solid angle's closed form at every node were most of the meshing time
-        phase = grid_phase(self.current, points, shape, loops)
-        self.theta = float(torch.angle(torch.exp(1j * phase).mean()))  # off the surface, where most of the grid is
+        # exact near Γ and where the level θ + π can pass, interpolated elsewhere (meshing.grid_angle): the
+        # network and the solid angle's closed form at every node were most of the meshing time
+        phase, self.theta = grid_phase(self.current, points, shape, loops)
         rel = (phase - self.theta).cpu().numpy().reshape(tuple(shape))
         self._side = np.cos(rel)
         return np.sin(rel), 0.0
