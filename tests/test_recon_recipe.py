@@ -50,3 +50,29 @@ def test_baseline_reports_its_ucd_in_the_target_files_units(tmp_path, parts_root
     assert metrics["ucd_input_units"] == pytest.approx(metrics["ucd"] * datamodule.scale, rel=1e-12)
     assert metrics["ucd_reverse_input_units"] == pytest.approx(metrics["ucd_reverse"] * datamodule.scale, rel=1e-12)
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["ucd_input_units"] > 0
+
+
+def test_mass_weight_adds_the_euclidean_mass_of_the_same_samples(parts_root):
+    """loss = L_curr(B) + λ·mean|ω| at the batch's ambient samples (+ the surface term), checked by hand."""
+    cfg = compose_cfg(["experiment=recon_hand", f"data.root={parts_root}", *TINY, "model.mass_weight=0.25",
+                       "model.surface_weight=0"])
+    datamodule, module = build(cfg)
+    datamodule.setup("fit")
+    batch = next(iter(datamodule.train_dataloader()))
+    loss = module.compute_losses(batch)["loss"].detach()
+    _, omega = module.current(batch["x"], create_graph=False)
+    metric_norm = (batch["metric"] @ omega.unsqueeze(-1)).squeeze(-1).norm(dim=-1).mean()
+    assert float(loss) == pytest.approx(float(metric_norm + 0.25 * omega.norm(dim=-1).mean()), rel=1e-5)
+    module.mass_weight = 0.0
+    assert float(module.compute_losses(batch)["loss"].detach()) == pytest.approx(float(metric_norm), rel=1e-5)
+
+
+def test_mass_weight_needs_uniform_ambient_samples():
+    from deepcurrents.errors import ConfigError
+    from deepcurrents.experiments.config import validate_config
+
+    cfg = compose_cfg(["experiment=recon_hand", "model.mass_weight=0.1", "data.sampling.kind=near"])
+    with pytest.raises(ConfigError, match="model.mass_weight needs uniform ambient samples"):
+        validate_config(cfg)
+    with pytest.raises(ConfigError, match="model.mass_weight=-1"):
+        build(compose_cfg(["experiment=recon_hand", "model.mass_weight=-1"]))

@@ -88,3 +88,7 @@ def validate_config(cfg: DictConfig) -> None:
     method = OmegaConf.select(cfg, "evaluation.mesh.method")
     if method is not None and method not in MESH_METHOD_CHOICES:
         raise ConfigError(f"evaluation.mesh.method={method!r} must be one of {', '.join(MESH_METHOD_CHOICES)}.")
+    if (OmegaConf.select(cfg, "model.mass_weight") or 0) > 0 and OmegaConf.select(cfg, "data.sampling.kind") == "near":
+        # the near samples' importance weights are folded into the metric, so E|ω| would not be the mass
+        raise ConfigError("model.mass_weight needs uniform ambient samples; data.sampling.kind=near weights "
+                          "them into the metric only.")

@@ -103,32 +103,54 @@ class ReconstructionModule(CurrentModule):
         target: the target geometry (from the DataModule's ``model_kwargs``); kept as buffers.
         surface_weight: weight of the surface loss (0 disables it).
         surface_margin: δ of the surface hinge loss (paper 0.01).
+        mass_weight: λ of a Euclidean mass term λ E|ω| at the ambient samples (beyond the paper; 0 = the paper):
+            B_x = w(I − n nᵀ) leaves ω along the closest normal free off Σ, so without it a sheet parallel to
+            the target (inside a nearly closed head) costs nothing.
     """
 
     def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
                  evaluation: dict | None = None, target: dict | None = None, surface_weight: float = 1.0,
-                 surface_margin: float = 0.01, grid_encoding: dict | None = None):
+                 surface_margin: float = 0.01, grid_encoding: dict | None = None, mass_weight: float = 0.0):
         super().__init__(boundary, net, optim, rff, evaluation, grid_encoding)
         self.save_hyperparameters(ignore=["target"])  # the geometry lives in buffers, not in hparams
         if not surface_weight >= 0 or not surface_margin > 0:
             raise ConfigError("model.surface_weight must be ≥ 0 and model.surface_margin positive.")
+        if not mass_weight >= 0:
+            raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
         self.surface_weight, self.surface_margin = float(surface_weight), float(surface_margin)
+        self.mass_weight = float(mass_weight)
         TargetGeometry.register(self, target)
 
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+    def compute_losses(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """{"loss", "current_loss"[, "mass_loss"][, "surface_loss"]} of one batch: L_curr(B) + λ·E|ω| (with
+        ``mass_weight``) + surface_weight·L_surf."""
         _, omega = self.current(batch["x"], create_graph=True)
-        loss_curr = current_loss(omega, batch.get("metric"))
-        loss = loss_curr
+        out = {"current_loss": current_loss(omega, batch.get("metric"))}
+        loss = out["current_loss"]
+        if self.mass_weight > 0:
+            # λ E|ω| (B = I) at the same samples: the metric leaves ω along n free off Σ, so a sheet parallel
+            # to the target inside a nearly closed part costs nothing without it (validate_config keeps the
+            # samples uniform, so this is λ × the mass)
+            out["mass_loss"] = current_loss(omega)
+            loss = loss + self.mass_weight * out["mass_loss"]
         if "surface_points" in batch and self.surface_weight > 0:
             offset = batch["epsilon"].unsqueeze(-1) * batch["surface_normals"]
             y = batch["surface_points"]
             f_minus, f_plus = self.current.f(torch.cat([y - offset, y + offset])).chunk(2)
-            loss_surf = surface_loss(f_minus, f_plus, self.surface_margin)
-            loss = loss + self.surface_weight * loss_surf
-            self.log("train/surface_loss", loss_surf)
+            out["surface_loss"] = surface_loss(f_minus, f_plus, self.surface_margin)
+            loss = loss + self.surface_weight * out["surface_loss"]
+        out["loss"] = loss
+        return out
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        losses = self.compute_losses(batch)
+        loss = losses["loss"]
         self.check_finite(loss)
         self.log("train/loss", loss, prog_bar=True)
-        self.log("train/current_loss", loss_curr, prog_bar=True)
+        self.log("train/current_loss", losses["current_loss"], prog_bar=True)
+        for key in ("surface_loss", "mass_loss"):
+            if key in losses:
+                self.log(f"train/{key}", losses[key])
         self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
         return loss
 
