@@ -308,3 +308,23 @@ def test_level_set_of_a_sealed_cup_gives_the_cup_closed_onto_gamma():
     assert mesh.vertices[:, 2].min() > -1e-6  # the cap is gone
     assert len(mesh.split(only_watertight=False)) == 1 and mesh.is_winding_consistent
     assert mesh.area == pytest.approx(2 * np.pi * cup.radius * cup.height + 2 * np.pi * cup.radius**2, rel=0.02)
+
+
+def test_closed_bubbles_are_dropped_and_sheets_with_a_border_kept():
+    """A closed sphere (no border edge: a cycle, it spans nothing) is dropped with its exact mesh area; an open
+    disk and a sphere with one face missing (it has a border) are kept."""
+    from deepcurrents.eval.meshing.surface import _drop_closed_components
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    ring = circle(0.3, n=32)  # a fan over a circle: an open disk
+    disk = trimesh.Trimesh(np.vstack([[0.0, 0.0, 0.0], ring]) + [1.0, 0, 0],
+                           [[0, 1 + i, 1 + (i + 1) % 32] for i in range(32)], process=False)
+    open_sphere = trimesh.Trimesh(sphere.vertices + [0, 1.0, 0], sphere.faces[1:])
+    parts = [sphere, disk, open_sphere]
+    verts = np.concatenate([p.vertices for p in parts])
+    offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
+    faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=True)])
+    kept, dropped = _drop_closed_components(verts, faces)
+    assert dropped == pytest.approx(sphere.area, rel=1e-12)
+    assert len(kept) == len(disk.faces) + len(open_sphere.faces)
+    assert set(np.unique(kept)) == set(range(len(sphere.vertices), len(verts)))

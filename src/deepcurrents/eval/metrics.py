@@ -82,7 +82,8 @@ def boundary_error(mesh: trimesh.Trimesh, loops: list[np.ndarray], spacing: floa
 
 def mesh_summary(result: Any, loops: list[np.ndarray]) -> dict[str, Any]:
     """What every report says of an extracted surface: ``mesh_area``, ``mesh_faces``, ``boundary_error``
-    (None for an empty mesh) and, for a ``MeshingResult``, ``mesh_level`` and ``boundary_loops_closed``.
+    (None for an empty mesh) and, for a ``MeshingResult``, ``mesh_level``, ``boundary_loops_closed`` and
+    ``mesh_closed_area_dropped`` (closed bubbles left out of the mesh, ``eval.meshing.surface``).
     ``result``: a MeshingResult or a trimesh.Trimesh; ``loops``: Γ as (M_i, 3) arrays."""
     mesh = getattr(result, "mesh", result)
     summary: dict[str, Any] = {
@@ -93,6 +94,7 @@ def mesh_summary(result: Any, loops: list[np.ndarray]) -> dict[str, Any]:
     if hasattr(result, "mesh"):
         summary["mesh_level"] = result.level
         summary["boundary_loops_closed"] = result.zipped_loops
+        summary["mesh_closed_area_dropped"] = float(getattr(result, "closed_area_dropped", 0.0))
     return summary
 
 

@@ -43,7 +43,7 @@ def input_frame(boundary: dict) -> tuple[float, np.ndarray] | None:
 # metrics that are lengths or areas, and their power of the scale
 _LENGTH_KEYS = {"mass_area": 2, "mass_area_stderr": 2, "mass_area_lower": 2, "mass_area_mc": 2,
                 "mass_area_mc_stderr": 2, "mass_area_sharpened": 2, "mass_area_sharpened_stderr": 2,
-                "mesh_area": 2, "boundary_error": 1}
+                "mesh_area": 2, "mesh_closed_area_dropped": 2, "boundary_error": 1}
 
 
 def input_mesh(mesh: trimesh.Trimesh, frame: tuple[float, np.ndarray]) -> trimesh.Trimesh:

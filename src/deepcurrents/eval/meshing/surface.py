@@ -8,7 +8,8 @@ faces. Here, whatever the method (``METHODS``: the phase by default, the paper's
    minimal surface lies in the convex hull of its boundary) and marching cubes extracts its level;
 2. the mesh is cut exactly along the tube of radius τ around Γ (``border.cut_tube``);
 3. outside the tube, faces are kept where |ω| at the centroid is ≥ δ and the method says they carry the
-   current, and specks (small components) are dropped;
+   current, and specks (small components) and closed bubbles (components without a border: cycles, ∂ = 0,
+   which span nothing; a sheet a reconstruction metric leaves free inside a nearly closed part) are dropped;
 4. vertices move onto the surface by a few clamped Newton steps of the method's residual;
 5. faces are oriented along the current (ω points along the normal of the surface it represents);
 6. the tube is closed: each cut border loop is zipped to its loop of Γ (``border.close_onto_loops``), so
@@ -48,6 +49,7 @@ class MeshingResult:
     mesh: trimesh.Trimesh
     level: float
     zipped_loops: int
+    closed_area_dropped: float = 0.0  # area of the closed bubbles left out (step 3 of the module docstring)
 
 
 def mesh_method(options: dict, default: str) -> dict:
@@ -88,6 +90,22 @@ def _drop_small_components(verts: np.ndarray, faces: np.ndarray, min_fraction: f
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
     areas = np.bincount(labels, weights=mesh.area_faces)
     return faces[(areas >= min_fraction * areas.sum())[labels]]
+
+
+def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float]:
+    """Drops connected components without a border edge (closed surfaces: their boundary is empty, so they
+    span no part of Γ). Called after the tube cut, where every sheet that reaches Γ has a border.
+    → (the remaining faces, the area dropped)."""
+    if len(faces) == 0:
+        return faces, 0.0
+    mesh = trimesh.Trimesh(verts, faces, process=False)
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    on_border = counts[inverse.ravel()] == 1  # per edge of every face (3 per face)
+    bordered = np.bincount(np.repeat(labels, 3), weights=on_border, minlength=labels.max() + 1) > 0
+    dropped = float(mesh.area_faces[~bordered[labels]].sum())
+    return faces[bordered[labels]], dropped
 
 
 def _grid(bounds: np.ndarray, resolution: int) -> tuple[np.ndarray, tuple[int, int, int], float]:
@@ -146,6 +164,7 @@ def extract_surface(
     bounds = np.asarray(bounds, dtype=np.float64)
     nodes, shape, voxel = _grid(bounds, resolution)
     dev = device_of(current)
+    closed_area = 0.0
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
     tube = max(boundary_tube, 1.5 * voxel) if close_boundary else 0.0
     empty = MeshingResult(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), finder.reported_level, 0)
@@ -169,6 +188,10 @@ def extract_surface(
         if tube > 0 and min_alignment > -1:
             keep &= finder.keep_carrying(centroids, omega, min_alignment)
         faces = _drop_small_components(verts, faces[keep.cpu().numpy()], min_component)
+        if tube > 0:
+            faces, closed_area = _drop_closed_components(verts, faces)
+            if closed_area > 0:
+                log.info("Dropped closed components of area %.4g (they span no part of Γ).", closed_area)
     if len(faces) == 0:
         log.warning("No part of the surface carries the current (|ω| ≥ %.3g); the mesh is empty.", delta)
         return empty
@@ -189,4 +212,4 @@ def extract_surface(
     mesh = trimesh.Trimesh(verts, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
-    return MeshingResult(mesh, finder.reported_level, zipped)
+    return MeshingResult(mesh, finder.reported_level, zipped, closed_area)
