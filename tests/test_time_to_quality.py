@@ -242,6 +242,35 @@ def test_mass_estimate_stops_at_the_requested_precision():
         validate_config(compose_cfg(["evaluation.mass_rel_stderr=-1"]))
 
 
+class _RadialField(torch.nn.Module):
+    """ω(x) = x on U = [-1, 1]³: E|ω| is the mean distance from a cube's centre, 2 × 0.4802959782 for side 2."""
+
+    dim = 3
+
+    def forward(self, x, create_graph=False):
+        return x.sum(-1), x
+
+
+def test_stratified_mass_estimate_is_unbiased_and_its_error_honest():
+    """The stratified uniform estimate (one sample per cell of a grid in each chunk) of E|x| over the cube:
+    over 40 seeds the estimates scatter around the exact 0.9605919564 as their standard errors say (z-scores'
+    RMS between 0.5 and 1.2: the collapsed-strata error is honest and at most mildly conservative), and
+    those errors are far below independent samples' (σ/√N, σ² = E|x|² − (E|x|)² = 1 − 0.92274)."""
+    from deepcurrents.eval.metrics import mass_estimate, stratified_uniform
+
+    exact = 2 * 0.4802959782
+    n = 1 << 12
+    z = []
+    for seed in range(40):
+        mean, err = mass_estimate(_RadialField(), n, seed=seed, chunk_size=1 << 10)
+        z.append((mean - exact) / err)
+    z = torch.tensor(z)
+    assert 0.5 < float(z.pow(2).mean().sqrt()) < 1.2 and abs(float(z.mean())) < 0.6
+    assert err < 0.5 * math.sqrt(1.0 - exact**2) / math.sqrt(n)
+    x = stratified_uniform(1000, 3, torch.Generator().manual_seed(0))
+    assert float(x.abs().max()) <= 1.0 and torch.histc(x[:, 0], bins=10, min=-1, max=1).eq(100).all()
+
+
 def test_grid_solid_angle_matches_the_closed_form():
     """Ω on a meshing grid, exact near Γ and interpolated elsewhere, agrees with the closed form at every
     node: e^{iΩ/2} within 0.05 rad (0.002 on average), and a coarse step of 1 is the closed form itself."""

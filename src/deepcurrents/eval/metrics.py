@@ -27,23 +27,52 @@ def mass_to_area(mass: float, dim: int, alpha_scale: float) -> float:
     return mass * 2.0**dim / (jump(dim) * alpha_scale)
 
 
+def stratified_uniform(n: int, dim: int, generator: torch.Generator) -> torch.Tensor:
+    """n points of U = [-1, 1]^dim, each uniform over U: one in each cell of a K^dim grid (K the largest even
+    number with K^dim ≤ n, cells in row-major order, so that samples 2j and 2j + 1 lie in neighbouring cells)
+    and the n − K^dim others uniform over U. → (n, dim) float32 on the CPU."""
+    u = torch.rand(n, dim, generator=generator)
+    k = int(math.floor(n ** (1.0 / dim) + 1e-9)) // 2 * 2
+    if k >= 2:
+        cells = torch.stack(torch.meshgrid(*[torch.arange(k)] * dim, indexing="ij"), -1).reshape(-1, dim)
+        u[: len(cells)] = (cells + u[: len(cells)]) / k
+    return u * 2.0 - 1.0
+
+
+def paired_square_sum(values: torch.Tensor) -> float:
+    """Σ_j (y_2j − y_2j+1)² over consecutive pairs, scaled to all of values (N,) (odd N: one unpaired): for
+    samples in neighbouring strata (``stratified_uniform``) it estimates n² times the variance of their mean
+    (collapsed strata: conservative by the squared differences of neighbouring strata's means), for
+    independent samples too (2σ² per pair)."""
+    pairs = len(values) // 2
+    if pairs == 0:
+        return 0.0
+    diff = values[0 : 2 * pairs : 2] - values[1 : 2 * pairs : 2]
+    return float((diff * diff).sum()) * len(values) / (2 * pairs)
+
+
 @torch.no_grad()
 def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size: int = 1 << 15,
                   metric_fn=None, rel_stderr: float | None = None, min_samples: int = 1 << 16,
                   info: dict | None = None) -> tuple[float, float]:
     """Monte Carlo E_x |B_x ω(x)| over U = [-1, 1]^d and its standard error, in chunks (bounded memory).
 
+    Each chunk is stratified (``stratified_uniform``: one sample per cell of a 32³ grid for 2^15 samples in
+    3D): every sample is uniform over U and the mean is unbiased as with independent samples, but the
+    variance between cells is gone (on the trained make-run trefoil the standard error at 2^20 samples is
+    0.58 % of the mean instead of 0.92 %). The standard error is the collapsed-strata estimate
+    (``paired_square_sum``).
     ``metric_fn(x) -> B`` (None for B = I) lets reconstruction evaluate its weighted mass the same way.
     ``rel_stderr``: stop early, once at least ``min_samples`` are drawn and stderr / mean ≤ rel_stderr
-    (``num_samples`` is then the most it draws); the samples are uniform either way. ``info`` (a dict, if
-    given) receives the number of samples used under "samples".
+    (``num_samples`` is then the most it draws). ``info`` (a dict, if given) receives the number of samples
+    used under "samples".
     """
     dev = device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
-    total, total_sq, done = 0.0, 0.0, 0
+    total, paired, done = 0.0, 0.0, 0
     while done < num_samples:
         n = min(chunk_size, num_samples - done)
-        x = (torch.rand(n, current.dim, generator=gen) * 2.0 - 1.0).to(dev)
+        x = stratified_uniform(n, current.dim, gen).to(dev)
         _, omega = current(x, create_graph=False)
         if metric_fn is not None:
             from deepcurrents.losses import apply_metric
@@ -51,17 +80,14 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
             omega = apply_metric(omega, metric_fn(x))
         m = omega.norm(dim=-1).double()
         total += float(m.sum())
-        total_sq += float((m * m).sum())
+        paired += paired_square_sum(m)
         done += n
         if rel_stderr is not None and done >= min_samples and done < num_samples:
-            mean = total / done
-            if math.sqrt(max(total_sq / done - mean * mean, 0.0) / done) <= rel_stderr * abs(mean):
+            if math.sqrt(paired) / done <= rel_stderr * abs(total / done):
                 break
     if info is not None:
         info["samples"] = done
-    mean = total / done
-    var = max(total_sq / done - mean * mean, 0.0)
-    return mean, math.sqrt(var / done)
+    return total / done, math.sqrt(paired) / done
 
 
 def mesh_border_segments(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
