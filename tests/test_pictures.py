@@ -19,8 +19,8 @@ from deepcurrents.models import base, reconstruction
 def test_plot_mesh_frames_the_view_it_is_given():
     tet = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     view = plots.mesh_view([np.asarray(tet.vertices), np.array([[2.0, 0.0, 0.0]])], elev=10.0, azim=-70.0)
-    # the mean of the five points, half-side 0.55 × the largest extent (x from 0 to 2)
-    np.testing.assert_allclose(view.center, [0.6, 0.2, 0.2])
+    # the centre of the five points' bounding box [0, 2] × [0, 1] × [0, 1], half-side 0.55 × its largest extent
+    np.testing.assert_allclose(view.center, [1.0, 0.5, 0.5])
     assert abs(view.radius - 0.55 * 2.0) < 1e-12
     fig = plots.plot_mesh(tet, None, None, view=view)
     ax = fig.axes[0]
@@ -30,9 +30,9 @@ def test_plot_mesh_frames_the_view_it_is_given():
     plt.close(fig)
     # without a view the picture frames its own mesh and loops, as before
     fig = plots.plot_mesh(tet, [np.array([[2.0, 0.0, 0.0], [2.0, 0.1, 0.0], [2.0, 0.0, 0.1]])], None)
-    ax = fig.axes[0]  # seven points: mean (1, 1.1/7, 1.1/7), largest extent 2 (x)
+    ax = fig.axes[0]  # seven points: box centre (1, 0.5, 0.5), largest extent 2 (x)
     np.testing.assert_allclose(ax.get_xlim3d(), (1 - 1.1, 1 + 1.1))
-    np.testing.assert_allclose(ax.get_ylim3d(), (1.1 / 7 - 1.1, 1.1 / 7 + 1.1))
+    np.testing.assert_allclose(ax.get_ylim3d(), (0.5 - 1.1, 0.5 + 1.1))
     assert (ax.elev, ax.azim) == (25.0, 35.0)
     plt.close(fig)
 
@@ -66,12 +66,12 @@ def test_reconstruction_mesh_and_target_pictures_share_one_view(tmp_path, cap_fi
     # one direction, one cube
     assert mesh["view"] == target["view"]
     np.testing.assert_array_equal(mesh["box"], target["box"])
-    # the cube frames the target and Γ (its rim), not whatever was extracted: mean of both point sets,
-    # half-side 0.55 × their largest extent
+    # the cube frames the target and Γ (its rim), not whatever was extracted: centred on both point sets'
+    # bounding box, half-side 0.55 × their largest extent
     cap = spherical_cap()
     pts = np.concatenate([cap.vertices, *mesh_boundary_loops(cap.vertices, cap.faces)])
     half = 0.55 * float((pts.max(0) - pts.min(0)).max())
-    np.testing.assert_allclose(mesh["box"].mean(1), pts.mean(0), atol=1e-6)
+    np.testing.assert_allclose(mesh["box"].mean(1), 0.5 * (pts.max(0) + pts.min(0)), atol=1e-6)
     np.testing.assert_allclose(mesh["box"][:, 1] - mesh["box"][:, 0], 2 * half, rtol=1e-6)
     # both drawn along the current: for ω ≈ α that is against the target's own (Stokes) normals
     from deepcurrents.models.loading import load_module
@@ -84,3 +84,16 @@ def test_reconstruction_mesh_and_target_pictures_share_one_view(tmp_path, cap_fi
     assert isinstance(drawn_target, trimesh.Trimesh) and len(drawn_target.faces) == len(cap.faces)
     outward = (drawn_target.face_normals * drawn_target.triangles_center).sum(1)
     assert (outward < 0).all()  # the cap's outward normals, reversed
+
+
+def test_the_framed_cube_holds_every_point_of_a_lopsided_set():
+    """Dense toes and a sparse heel: every point lies inside the cube centre ± radius (the points' mean, the
+    former centre, left the heel 0.4 outside it)."""
+    rng = np.random.default_rng(0)
+    toes = rng.uniform([-0.1, 0.8, -0.1], [0.1, 1.0, 0.1], size=(5000, 3))
+    heel = np.array([[0.0, -1.0, 0.0], [0.05, -0.95, 0.0]])
+    view = plots.mesh_view([toes, heel])
+    lo = np.asarray(view.center) - view.radius
+    hi = np.asarray(view.center) + view.radius
+    pts = np.vstack([toes, heel])
+    assert (pts >= lo).all() and (pts <= hi).all()

@@ -57,12 +57,15 @@ class MeshView:
 
 def mesh_view(points: Sequence[np.ndarray], elev: float = 25.0, azim: float = 35.0, margin: float = 1.0) -> MeshView:
     """The view framing point sets (each (N_i, 3): a mesh's vertices, Γ's loops, a target): centred on
-    their mean, half-side 0.55 × their largest extent × ``margin``."""
+    their bounding box, half-side 0.55 × its largest extent × ``margin``, so the cube holds every point (the
+    mean of the points, the former centre, leans to where they are dense: a foot's toes pushed its heel out
+    of the picture)."""
     pts = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in points])
     if len(pts) == 0:
         return MeshView(elev, azim)
-    radius = 0.55 * float((pts.max(0) - pts.min(0)).max()) * margin
-    return MeshView(float(elev), float(azim), tuple(float(c) for c in pts.mean(0)), radius)
+    low, high = pts.min(0), pts.max(0)
+    radius = 0.55 * float((high - low).max()) * margin
+    return MeshView(float(elev), float(azim), tuple(float(c) for c in 0.5 * (low + high)), radius)
 
 
 def plot_mesh(
