@@ -53,7 +53,10 @@ def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None,
         raise ConfigError(f"model.grid_encoding has unknown keys {sorted(unknown)}; it takes "
                           f"{', '.join(sorted(GRID_ENCODING_KEYS))}.")
     grid.pop("lr_factor", None)  # an optimiser setting (CurrentModule.parameter_groups), not the network's
-    if int(grid.pop("levels", 0) or 0) > 0:
+    levels = grid.pop("levels", 0) or 0
+    if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
+        raise ConfigError(f"model.grid_encoding.levels={levels!r} must be a non-negative integer (0: no grid).")
+    if levels > 0:
         kwargs["grid"] = {"levels": int(grid_encoding["levels"]), **grid}
     return kwargs
 
