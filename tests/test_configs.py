@@ -141,8 +141,9 @@ COLUMNS = ("trainer.max_steps", "model.optim.step_size", "model.optim.lr", "mode
            "evaluation.mesh.resolution")
 # Composed before configs had one place for lengths (commit 238db52), unchanged since but for one fix:
 # recon_baseline under preset=cpu ran 1000 steps (preset_sizes overrode the experiment) where its wall-time
-# budget is meant to stop it (1,000,000); and reconstructions under preset=cpu train at lr 3e-3 with a cosine over
-# the budget (preset_sizes/model/cpu_reconstruction.yaml; step_size is then unused).
+# budget is meant to stop it (1,000,000); and reconstructions, then minimal surfaces, under preset=cpu train at
+# lr 3e-3 with a cosine over the budget (preset_sizes/model/cpu_current.yaml, which cpu_reconstruction.yaml includes;
+# step_size is then unused).
 # recon_part stands for every recon_<part> alias (tested below).
 # Columns in the order of COLUMNS; '-': the key is absent.
 LENGTHS_TABLE = """
@@ -152,19 +153,19 @@ latent_hands        cpu    1500    600   0.001  0.5   512     512     256   128 
 latent_heads        paper  300000  60000 0.0004 0.5   4000    4000    1024  256   4     10000 1048576 100000 128
 latent_heads        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  64
 minimal_2d          paper  20000   2000  0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
-minimal_2d          cpu    3000    1000  0.001  0.6   2048    -       256   128   3     500   1048576 100000 128
+minimal_2d          cpu    3000    1000  0.003  0.6   2048    -       256   128   3     500   1048576 100000 128
 minimal_borromean   paper  100000  10000 0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
-minimal_borromean   cpu    3000    1000  0.001  0.6   2048    -       256   128   3     500   1048576 100000 128
+minimal_borromean   cpu    3000    1000  0.003  0.6   2048    -       256   128   3     500   1048576 100000 128
 minimal_curve       paper  100000  10000 0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
-minimal_curve       cpu    3000    1000  0.001  0.6   2048    -       256   128   3     500   1048576 100000 128
+minimal_curve       cpu    3000    1000  0.003  0.6   2048    -       256   128   3     500   1048576 100000 128
 minimal_grid        paper  5000    10000 0.0005 0.6   1       -       1024  256   4     500   1048576 100000 128
 minimal_grid        cpu    2000    1000  0.001  0.6   2048    -       256   128   3     500   1048576 100000 128
 minimal_hopf        paper  100000  10000 0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
-minimal_hopf        cpu    3000    1000  0.001  0.6   2048    -       256   128   3     500   1048576 100000 128
+minimal_hopf        cpu    3000    1000  0.003  0.6   2048    -       256   128   3     500   1048576 100000 128
 minimal_trefoil     paper  100000  10000 0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
-minimal_trefoil     cpu    3000    1000  0.001  0.6   2048    -       256   128   3     500   1048576 100000 128
+minimal_trefoil     cpu    3000    1000  0.003  0.6   2048    -       256   128   3     500   1048576 100000 128
 recon_2d_semicircle paper  20000   2000  0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
-recon_2d_semicircle cpu    400     150   0.001  0.6   1024    -       256   128   3     500   65536   100000 128
+recon_2d_semicircle cpu    400     150   0.003  0.6   1024    -       256   128   3     500   65536   100000 128
 recon_baseline      paper  1000000 2000  0.001  0.6   4000    4000    1024  256   4     1000  1048576 100000 128
 recon_baseline      cpu    1000000 400   0.001  0.6   1024    1024    256   128   3     500   65536   100000 96
 recon_mesh          paper  10000   2000  0.001  0.6   4000    4000    1024  256   4     1000  1048576 100000 128
