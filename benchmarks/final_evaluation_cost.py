@@ -1,0 +1,83 @@
+"""The final evaluation of a trained checkpoint against its training, as ``train.py`` runs it after training.
+
+    OMP_NUM_THREADS=1 python benchmarks/final_evaluation_cost.py outputs/…/checkpoints/last.ckpt
+
+Times ``final_evaluation`` (mass estimate, mesh, writing the mesh files, sharpened bound) and the media
+callback's render of the checkpoint's module, and the seconds of one training step of the same run
+configuration measured in the same process (before and after, averaged, so that a change of the machine's
+load hits both); prints one JSON line with the ratios to ``trainer.max_steps`` steps. To compare two trees
+on a shared machine, run it alternately from each (``git worktree add /tmp/old <commit>``, then
+``PYTHONPATH=/tmp/old/src python benchmarks/final_evaluation_cost.py …``): the ratios, not the seconds, are
+comparable. ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+
+import torch
+from omegaconf import OmegaConf
+
+import deepcurrents
+from deepcurrents.experiments.runner import build
+from deepcurrents.losses import current_loss
+from deepcurrents.models.callbacks import MediaCallback
+from deepcurrents.models.loading import load_module
+
+
+def step_seconds(cfg, steps: int = 30, warm: int = 5) -> float:
+    """Seconds per training step of the run configuration ``cfg`` (its DataModule's batches, the module's
+    loss, backward, an Adam step), the mean over ``steps`` after ``warm``."""
+    datamodule, module = build(cfg)
+    batches = iter(datamodule.train_dataloader())
+    opt = torch.optim.Adam(module.parameters(), lr=1e-4)
+    for i in range(warm + steps):
+        if i == warm:
+            start = time.perf_counter()
+        batch = next(batches)
+        _, omega = module.current(batch["x"], create_graph=True, alpha=batch.get("alpha"))
+        loss = current_loss(omega, batch.get("metric"), batch.get("weight"))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return (time.perf_counter() - start) / steps
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("ckpt")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    module = load_module(args.ckpt)
+    cfg = OmegaConf.create(module.run_config)
+    load = os.getloadavg()[0]
+    before = step_seconds(cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        metrics = module.final_evaluation(tmp)
+        evaluation = time.perf_counter() - start
+        media = cfg.callbacks.get("media") or {}
+        render = MediaCallback(every_n_steps=0, final=True, **{k: media[k] for k in
+                               ("size", "samples", "grid", "azimuth", "elevation") if k in media})
+        start = time.perf_counter()
+        render.render(module, os.path.join(tmp, "render.png"))
+        rendering = time.perf_counter() - start
+    step = 0.5 * (before + step_seconds(cfg))
+    train = step * int(cfg.trainer.max_steps)
+    print(json.dumps({
+        "tree": deepcurrents.__file__.split("/src/")[0], "seconds_per_step": step, "train_seconds": train,
+        "evaluation_seconds": evaluation, "render_seconds": rendering,
+        "evaluation_per_train": evaluation / train, "with_render_per_train": (evaluation + rendering) / train,
+        **{k: metrics.get(k) for k in ("mass_samples", "mass_area", "mass_area_stderr", "mesh_area",
+                                       "mass_area_sharpened")},
+        "load": [load, os.getloadavg()[0]],
+    }))
+
+
+if __name__ == "__main__":
+    main()
