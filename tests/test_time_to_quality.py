@@ -305,42 +305,58 @@ def test_phase_mesh_of_an_untrained_circle_is_the_disk():
 
 
 def _level_cells_of(rel, shape):
-    """Fine cells where marching cubes makes faces of the phase mesh: sin(φ − θ) changes sign over the
-    corners and cos(φ − θ) < 0 at one of them. rel (G0·G1·G2,) = φ − θ → (G0 − 1, G1 − 1, G2 − 1) bool."""
+    """Fine cells where marching cubes can make faces of the phase mesh: an edge along which sin(φ − θ)
+    changes sign with cos(φ − θ) < 0 where it vanishes (linearly interpolated, as the faces' vertices and
+    ``PhaseMethod.keep_marched`` see it; a kept face has such a vertex). rel (G0·G1·G2,) = φ − θ
+    → (G0 − 1, G1 − 1, G2 − 1) bool."""
     import numpy as np
 
     s, c = np.sin(rel).reshape(shape), np.cos(rel).reshape(shape)
-    cell = tuple(n - 1 for n in shape)
-    corners = [tuple(slice(k, k + n) for k, n in zip(corner, cell, strict=True)) for corner in np.ndindex(2, 2, 2)]
-    pos = np.any([s[k] > 0 for k in corners], 0) & np.any([s[k] <= 0 for k in corners], 0)
-    return pos & np.any([c[k] < 0 for k in corners], 0)
+    cells = np.zeros(tuple(n - 1 for n in shape), dtype=bool)
+    for axis in range(3):
+        lo = tuple(slice(0, -1) if a == axis else slice(None) for a in range(3))
+        hi = tuple(slice(1, None) if a == axis else slice(None) for a in range(3))
+        crossing = (s[lo] > 0) != (s[hi] > 0)
+        t = s[lo] / np.where(crossing, s[lo] - s[hi], 1.0)
+        edge = crossing & (c[lo] + t * (c[hi] - c[lo]) < 0)  # edges along axis: (…, n_axis − 1, …)
+        for shift in np.ndindex(2, 2):  # the cell's four edges along this axis
+            pick, k = [], 0
+            for a in range(3):
+                if a == axis:
+                    pick.append(slice(None))
+                else:
+                    pick.append(slice(shift[k], shift[k] + shape[a] - 1))
+                    k += 1
+            cells |= edge[tuple(pick)]
+    return cells
 
 
-@pytest.mark.parametrize("scale", [2e-3, 2e-2])
-def test_narrow_band_phase_is_the_dense_phase_where_the_mesh_is(scale):
+@pytest.mark.parametrize(("curve", "scale"), [("trefoil", 2e-3), ("trefoil", 2e-2), ("hopf_link", 2e-2)])
+def test_narrow_band_phase_is_the_dense_phase_where_the_mesh_is(curve, scale):
     """The banded phase (network and Ω exact only near Γ and in coarse cells the level θ + π can cross)
     makes marching cubes find the same cells as the phase evaluated at every node, with the same values
     at their corners, for a current whose f varies smoothly (f/(2a) of order 1) and one with many turns
-    (order 10); so the mesh is the dense grid's (with the same θ): the same faces and area."""
+    (order 10), on a knot and on two linked loops; so the mesh is the dense grid's (with the same θ): the same
+    faces and area."""
     import numpy as np
 
+    from deepcurrents import geometry
     from deepcurrents.eval.meshing import current_phase, extract_surface
     from deepcurrents.eval.meshing import phase as phase_module
     from deepcurrents.eval.meshing.grid_angle import grid_phase
     from deepcurrents.eval.meshing.surface import _grid, region_of_interest
-    from deepcurrents.geometry import trefoil
     from deepcurrents.nn import NeuralCurrent
 
-    loop = np.asarray(trefoil(60), dtype=np.float64).reshape(-1, 3)
+    loops = [np.asarray(lp, dtype=np.float64) for lp in getattr(geometry, curve)(60)]
     torch.manual_seed(0)
-    current = NeuralCurrent(loops=[torch.as_tensor(loop, dtype=torch.float32)], num_frequencies=16, width=16,
-                            depth=2, sigma=1.0)
+    current = NeuralCurrent(loops=[torch.as_tensor(lp, dtype=torch.float32) for lp in loops], num_frequencies=16,
+                            width=16, depth=2, sigma=1.0)
     with torch.no_grad():
         current.mlp.net[-1].weight.normal_(0.0, scale)
-    nodes, shape, _ = _grid(region_of_interest([loop], 0.15), 40)
+    nodes, shape, _ = _grid(region_of_interest(loops, 0.15), 40)
     x = torch.as_tensor(nodes, dtype=torch.float32)
     dense = current_phase(current, x).numpy()
-    banded, theta = grid_phase(current, x, shape, [loop])
+    banded, theta = grid_phase(current, x, shape, loops)
     banded = banded.numpy()
     cells = _level_cells_of(dense - theta, shape)
     assert cells.sum() > 100
