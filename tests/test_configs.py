@@ -254,3 +254,13 @@ def test_recon_part_without_a_category_is_one_sentence(tmp_path):
     with pytest.raises(UserInputError, match="data.category") as info:
         train(compose_cfg(["experiment=recon_part", *QUIET_CPU]), out_dir=tmp_path)
     assert "\n" not in str(info.value)
+
+
+def test_curve_method_is_checked_and_the_semicircle_keeps_the_level_set():
+    from deepcurrents.errors import ConfigError
+    from deepcurrents.experiments.config import validate_config
+
+    assert composed("experiment=minimal_2d").evaluation.curve.method == "phase"
+    assert composed("experiment=recon_2d_semicircle").evaluation.curve.method == "level_set"
+    with pytest.raises(ConfigError, match="evaluation.curve.method='magic' must be one of phase, level_set"):
+        validate_config(composed("experiment=minimal_2d", "evaluation.curve.method=magic"))

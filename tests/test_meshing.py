@@ -328,3 +328,25 @@ def test_closed_bubbles_are_dropped_and_sheets_with_a_border_kept():
     assert dropped == pytest.approx(sphere.area, rel=1e-12)
     assert len(kept) == len(disk.faces) + len(open_sphere.faces)
     assert set(np.unique(kept)) == set(range(len(sphere.vertices), len(verts)))
+
+
+def test_phase_curve_of_an_untrained_2d_current_is_the_segment():
+    """f ≡ const (zero-initialised output): φ = const/s + angle(x − p₊) − angle(x − p₋), whose level sets are
+    the circular arcs through the two points; off the curve (most of the box) φ ≈ its far value, so the level
+    opposite it is the straight segment (the 2D analogue of the flat disk of a planar circle). The paper's level
+    set f = s finds nothing in a constant f."""
+    from deepcurrents.eval.meshing import extract_curve_2d
+    from deepcurrents.eval.metrics import curve_length
+    from deepcurrents.nn import NeuralCurrent
+
+    torch.manual_seed(0)
+    current = NeuralCurrent(dim=2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+                            num_frequencies=8, width=8, depth=1).eval()
+    # 127 cells: no grid row on y = 0, where sin(φ − θ) would vanish exactly at the nodes of this symmetric case
+    # δ = 0: the untrained |ω| = s|α| is below the default δ in the middle of the segment
+    curves = extract_curve_2d(current, resolution=127, delta=0.0, method="phase")
+    assert len(curves) == 1 and abs(curve_length(curves) - 1.0) < 0.01
+    assert np.abs(curves[0][:, 1]).max() < 2.0 / 127  # on y = 0, within a grid cell
+    assert extract_curve_2d(current, resolution=127, delta=0.0, method="level_set") == []
+    with pytest.raises(ValueError, match="method"):
+        extract_curve_2d(current, method="magic")

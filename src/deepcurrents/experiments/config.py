@@ -9,7 +9,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError, positive_int
-from deepcurrents.eval.meshing import MESH_METHOD_CHOICES
+from deepcurrents.eval.meshing import CURVE_METHODS, MESH_METHOD_CHOICES
 
 
 def _positive_int(cfg: DictConfig, key: str, minimum: int = 1) -> None:
@@ -88,6 +88,9 @@ def validate_config(cfg: DictConfig) -> None:
     method = OmegaConf.select(cfg, "evaluation.mesh.method")
     if method is not None and method not in MESH_METHOD_CHOICES:
         raise ConfigError(f"evaluation.mesh.method={method!r} must be one of {', '.join(MESH_METHOD_CHOICES)}.")
+    curve_method = OmegaConf.select(cfg, "evaluation.curve.method")
+    if curve_method is not None and curve_method not in CURVE_METHODS:
+        raise ConfigError(f"evaluation.curve.method={curve_method!r} must be one of {', '.join(CURVE_METHODS)}.")
     if (OmegaConf.select(cfg, "model.mass_weight") or 0) > 0 and OmegaConf.select(cfg, "data.sampling.kind") == "near":
         # the near samples' importance weights are folded into the metric, so E|ω| would not be the mass
         raise ConfigError("model.mass_weight needs uniform ambient samples; data.sampling.kind=near weights "

@@ -8,7 +8,7 @@ and loops are pure mesh topology: ``deepcurrents.geometry.topology``.
 """
 
 from deepcurrents.eval.meshing.border import clip_by_field, zip_to_loop
-from deepcurrents.eval.meshing.curve_2d import extract_curve_2d
+from deepcurrents.eval.meshing.curve_2d import CURVE_METHODS, extract_curve_2d
 from deepcurrents.eval.meshing.level_set import level_on_boundary
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.eval.meshing.phase import current_phase
@@ -24,7 +24,7 @@ from deepcurrents.eval.meshing.surface import (
 )
 
 __all__ = [
-    "MESH_METHODS", "MESH_METHOD_CHOICES", "METHODS", "MeshMethod", "MeshingResult", "clip_by_field",
+    "CURVE_METHODS", "MESH_METHODS", "MESH_METHOD_CHOICES", "METHODS", "MeshMethod", "MeshingResult", "clip_by_field",
     "current_phase", "extract_curve_2d", "extract_surface", "flux_sign", "level_on_boundary", "mesh_method",
     "region_of_interest", "zip_to_loop",
 ]
