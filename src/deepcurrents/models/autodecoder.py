@@ -60,7 +60,8 @@ class AutodecoderModule(DeepCurrentsModule):
         mass_weight: λ of a Euclidean mass term on the training shapes, λ E_x|ω(x)| (B = I) at the same uniform
             samples as the current loss (beyond the paper; 0 = the paper). The reconstruction metric
             B_x = w_x (I − n nᵀ) leaves ω's component along the closest target normal free everywhere off Σ,
-            so a current may keep a haze there that costs nothing; a small λ makes it cost.
+            so a current may keep mass there that costs nothing; this makes it cost. (On the CPU hands it did
+            not remove the dome that the surface hinge leaves inside each hand; ``surface_margin`` did: README.)
         interpolation_weight: weight of the mass loss (Euclidean metric, B = I) of random interpolants between
             the batch's shapes (latent codes and boundaries blended per pair), so what lies between training
             shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
