@@ -180,6 +180,7 @@ def test_suites_write_their_tables(tmp_path, parts_root, experiment, table):
     else:
         names = ("full", "relu", "no_rff", "no_surface_loss", "no_boundary_weighting")
         assert all(name in text for name in names)
+        assert "| run | ucd_file | ucd_reverse_file | ucd |" in text  # the file's units first, as Table 1
 
 
 # ------------------------------------------------------------------------------------------ bad input

@@ -102,11 +102,14 @@ def table1_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> lis
 
 
 def ablation_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> list[dict[str, Any]]:
-    """hand_ablation.md / .csv (UCD, reverse UCD, boundary error, mesh area, time per variant) and
+    """hand_ablation.md / .csv (UCD and reverse UCD in the target file's units, as Table 1 — the run's own frame
+    beside them when it normalised its target —, boundary error, mesh area, time per variant) and
     hand_ablation.png: the variants' mesh pictures side by side, as in Fig. 7."""
     out_dir = Path(out_dir)
-    columns = ["run", "ucd", "ucd_reverse", "chamfer", "boundary_error", "mesh_area", "target_area",
-               "mesh_faces", "steps", "train_seconds"]
+    results = [{**r, "metrics": {**r["metrics"], "ucd_file": _input_units(r["metrics"], "ucd"),
+                                 "ucd_reverse_file": _input_units(r["metrics"], "ucd_reverse")}} for r in results]
+    columns = ["run", "ucd_file", "ucd_reverse_file", "ucd", "ucd_reverse", "chamfer", "boundary_error", "mesh_area",
+               "target_area", "mesh_faces", "steps", "train_seconds"]
     rows = write_table(out_dir, results, cfg, columns=columns, name="hand_ablation")
     images = [(r["name"], Path(r["dir"]) / "mesh.png") for r in results]
     fig, axes = plt.subplots(1, len(images), figsize=(3 * len(images), 3.3), dpi=120, squeeze=False)
@@ -115,7 +118,7 @@ def ablation_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> l
             ax.imshow(plt.imread(path))
         ax.set_axis_off()
         # an empty mesh has no UCD: say so (e.g. a surface that collapsed onto the minimal one inside the tube)
-        ucd = f"UCD {_fmt(row['ucd'])}" if row.get("ucd") is not None else "no surface extracted"
+        ucd = f"UCD {_fmt(row['ucd_file'])}" if row.get("ucd_file") is not None else "no surface extracted"
         ax.set_title(f"{name}\n{ucd}", fontsize=9)
     fig.tight_layout()
     fig.savefig(out_dir / "hand_ablation.png", bbox_inches="tight")
