@@ -73,8 +73,10 @@ def uninterrupted(tmp_path_factory) -> Path:
 def test_resumed_in_process_run_equals_the_uninterrupted_one(tmp_path):
     """k < N steps (checkpoint every 2), then ckpt_path=auto to N: the weights, the optimiser's moments and
     the step count equal those of N steps in one go."""
+    # the step schedule: preset=cpu's cosine follows the budget, so a run stopped by a smaller max_steps has another
+    # learning rate at every step (the kill/signal tests below resume cosine runs with their budget unchanged)
     base = ["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL,
-            "callbacks.model_checkpoint.every_n_train_steps=2"]
+            "callbacks.model_checkpoint.every_n_train_steps=2", "model.optim.schedule=step"]
     train(compose_cfg([*base, "trainer.max_steps=7"]), out_dir=tmp_path / "a")
     train(compose_cfg([*base, "trainer.max_steps=3"]), out_dir=tmp_path / "b")
     metrics = train(compose_cfg([*base, "trainer.max_steps=7", "ckpt_path=auto"]), out_dir=tmp_path / "b")
