@@ -33,6 +33,7 @@ from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
 from deepcurrents.eval.meshing.level_set import LevelSetMethod
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.eval.meshing.phase import PhaseMethod
+from deepcurrents.geometry.topology import border_edges
 
 log = logging.getLogger(__name__)
 
@@ -100,10 +101,10 @@ def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.nd
         return faces, 0.0
     mesh = trimesh.Trimesh(verts, faces, process=False)
     labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    on_border = counts[inverse.ravel()] == 1  # per edge of every face (3 per face)
-    bordered = np.bincount(np.repeat(labels, 3), weights=on_border, minlength=labels.max() + 1) > 0
+    on_border = np.zeros(len(verts), dtype=bool)
+    on_border[border_edges(faces).ravel()] = True
+    bordered = np.zeros(labels.max() + 1, dtype=bool)
+    bordered[labels[on_border[faces].any(1)]] = True  # a component with a face on a border edge's vertex
     dropped = float(mesh.area_faces[~bordered[labels]].sum())
     return faces[bordered[labels]], dropped
 
