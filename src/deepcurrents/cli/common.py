@@ -74,14 +74,18 @@ def run_app(main: Callable[[Any], Any], cfg: Any) -> Any:
     return exit_on_user_error(main, cfg)
 
 
+def run_evaluation(module: Any) -> dict[str, Any]:
+    """The run's ``evaluation`` node as a checkpoint carries it (the module's, else its run config's; {})."""
+    return dict(getattr(module, "evaluation", None) or (getattr(module, "run_config", None) or {}).get("evaluation")
+                or {})
+
+
 def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> dict[str, Any]:
     """``extract_surface`` keyword arguments: the run's ``evaluation.mesh`` settings, then ``overrides``
     (None values are ignored). Families mesh a member inside its training shape's box
     (``module.meshing_bounds``) and reconstructions inside their target's (``module.target_bounds``),
     since their surfaces reach beyond Γ's box."""
-    run_config = getattr(module, "run_config", None) or {}
-    evaluation = getattr(module, "evaluation", None) or run_config.get("evaluation") or {}
-    settings = dict(evaluation.get("mesh") or {})
+    settings = dict(run_evaluation(module).get("mesh") or {})
     settings.update({k: v for k, v in overrides.items() if v is not None})
     if settings.get("bounds") is None and callable(getattr(module, "meshing_bounds", None)):
         settings["bounds"] = module.meshing_bounds([0 if shape is None else shape])

@@ -23,7 +23,7 @@ import numpy as np
 import trimesh
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
+from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app, run_evaluation
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import (
@@ -71,7 +71,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     out = output_dir(cfg.ckpt_path, cfg.out_dir)
 
     # unset sizes and seed from the run's own evaluation settings, so `loss` matches its metrics.json
-    evaluation = getattr(module, "evaluation", None) or (module.run_config or {}).get("evaluation") or {}
+    evaluation = run_evaluation(module)
     seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
     mass_samples = int(cfg.mass_samples or evaluation.get("mass_samples", 1 << 20))
     mass, stderr = mass_estimate(current, mass_samples, seed=seed)
@@ -87,7 +87,8 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     if current.dim == 2:
         if target is not None or given is not None:
             raise ConfigError("target= and mesh= are for 3D currents; this checkpoint's current is 2D.")
-        metrics["curve_length"] = curve_length(extract_curve_2d(current))
+        # the run's own curve settings (a metric-trained curve keeps the level set: recon_2d_semicircle)
+        metrics["curve_length"] = curve_length(extract_curve_2d(current, **dict(evaluation.get("curve") or {})))
     else:
         if given is not None:
             mesh = given

@@ -19,7 +19,7 @@ import hydra
 import numpy as np
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
+from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app, run_evaluation
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import curve_length, mesh_summary
@@ -104,8 +104,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
 def extract_curve(module, current, cfg: DictConfig, out: Path) -> dict:
     """A 2D current's curve at ``cfg.resolution`` (the run's ``evaluation.curve`` settings otherwise):
     ``out/curve_r<resolution>.npz`` (one (K, 2) polyline per array) and its summary."""
-    evaluation = getattr(module, "evaluation", None) or (module.run_config or {}).get("evaluation") or {}
-    settings = {**dict(evaluation.get("curve") or {}), "resolution": int(cfg.resolution)}
+    settings = {**dict(run_evaluation(module).get("curve") or {}), "resolution": int(cfg.resolution)}
     curves = extract_curve_2d(current, **settings)
     path = out / f"curve_r{cfg.resolution}.npz"
     np.savez(path, *curves)

@@ -67,18 +67,20 @@ def extract_curve_2d(
     for contour in find_contours(vol, level):
         pts = contour * h - 1.0
         dist = np.linalg.norm(pts[:, None] - poles[None], axis=-1).min(1)
-        mid = 0.5 * (pts[1:] + pts[:-1])
-        mid_t = torch.as_tensor(mid, dtype=torch.float32, device=dev)
+        good = (dist[1:] >= tube) & (dist[:-1] >= tube)
+        if method == "phase":
+            # sin(φ − θ) also vanishes off the curve (φ ≈ θ): keep where φ is opposite θ; judged on the grid
+            # first, so the many contours around θ cost no network pass
+            good &= map_coordinates(side, (0.5 * (contour[1:] + contour[:-1])).T, order=1) < 0
+        if not good.any():
+            continue
+        mid_t = torch.as_tensor(0.5 * (pts[1:] + pts[:-1]), dtype=torch.float32, device=dev)
         _, omega = current.evaluate(mid_t)
         carries = omega.norm(dim=-1) >= delta
-        if method == "phase":
-            # sin(φ − θ) also vanishes off the curve (φ ≈ θ): keep where φ is opposite θ
-            opposite = map_coordinates(side, (0.5 * (contour[1:] + contour[:-1])).T, order=1) < 0
-            good = carries.cpu().numpy() & opposite
-        else:
+        if method == "level_set":
             # as in 3D: on the curve the current flows along ∇f; on the complementary level curve it does not
-            good = (carries & aligned_with_grad_f(current, mid_t, omega, min_alignment)).cpu().numpy()
-        good &= (dist[1:] >= tube) & (dist[:-1] >= tube)
+            carries &= aligned_with_grad_f(current, mid_t, omega, min_alignment)
+        good &= carries.cpu().numpy()
         # split into runs of good segments
         idx = np.flatnonzero(good)
         if len(idx) == 0:
