@@ -67,7 +67,7 @@ def test_mass_weight_adds_the_euclidean_mass_of_the_same_samples(parts_root):
     assert float(module.compute_losses(batch)["loss"].detach()) == pytest.approx(float(metric_norm), rel=1e-5)
 
 
-def test_mass_weight_needs_uniform_ambient_samples():
+def test_mass_weight_needs_uniform_ambient_samples(parts_root):
     from deepcurrents.errors import ConfigError
     from deepcurrents.experiments.config import validate_config
 
@@ -75,4 +75,4 @@ def test_mass_weight_needs_uniform_ambient_samples():
     with pytest.raises(ConfigError, match="model.mass_weight needs uniform ambient samples"):
         validate_config(cfg)
     with pytest.raises(ConfigError, match="model.mass_weight=-1"):
-        build(compose_cfg(["experiment=recon_hand", "model.mass_weight=-1"]))
+        build(compose_cfg(["experiment=recon_hand", f"data.root={parts_root}", *TINY, "model.mass_weight=-1"]))
