@@ -253,14 +253,18 @@ def test_hand_written_gradient_network_with_a_code_per_shape(activation):
         assert _relative_error(a, b) <= 1e-10
 
 
-def test_family_decoder_takes_the_hand_written_pass_with_the_same_numbers(monkeypatch):
+@pytest.mark.parametrize("coarse_to_fine", [0.0, 0.5])
+def test_family_decoder_takes_the_hand_written_pass_with_the_same_numbers(monkeypatch, coarse_to_fine):
     """FamilyCurrent.forward through nn.field_gradient against its autograd path in float64: f, ω and the
-    gradients of every parameter (latent codes and boundary encoders included)."""
+    gradients of every parameter (latent codes and boundary encoders included); also with coarse-to-fine
+    features half open."""
     import deepcurrents.nn.family as family_module
 
     torch.manual_seed(6)
     fam = family_module.FamilyCurrent(num_shapes=3, num_loops=1, latent_dim=4, boundary_dim=4, num_frequencies=8,
-                                      width=8, depth=2, zero_init_output=False).double()
+                                      width=8, depth=2, zero_init_output=False,
+                                      coarse_to_fine=coarse_to_fine).double()
+    fam.encoding.set_progress(0.2)
     shapes, n = 2, 30
     loops = torch.tensor(circle(0.5, n=12))[None, None].expand(shapes, 1, -1, -1).contiguous()
     mask = torch.ones(shapes, 1, 12, dtype=torch.bool)
@@ -276,7 +280,58 @@ def test_family_decoder_takes_the_hand_written_pass_with_the_same_numbers(monkey
     fast = run()
     monkeypatch.setattr(family_module, "closed_form_supported", lambda *args, **kwargs: False)
     ref = run()
-    assert torch.equal(fast[0], ref[0])
+    if coarse_to_fine:  # (φ ⊙ w) W and φ (W ⊙ w) round differently
+        assert _relative_error(fast[0], ref[0]) <= 1e-12
+    else:
+        assert torch.equal(fast[0], ref[0])
     assert _relative_error(fast[1], ref[1]) <= 1e-12
     for a, b in zip(fast[2], ref[2], strict=True):
+        assert _relative_error(a, b) <= 1e-10
+
+
+def test_coarse_to_fine_features_open_in_order_of_frequency():
+    """w_k ramps from 0 to 1 as the front passes rank(|B_k|); every w is 1 once the fraction coarse_to_fine of
+    the budget is used, and then the features are the plain ones of the same seed."""
+    ff = FourierFeatures(3, num_frequencies=200, sigma=2.0, seed=0, coarse_to_fine=0.5, coarse_start=0.25)
+    plain = FourierFeatures(3, num_frequencies=200, sigma=2.0, seed=0)
+    norms = ff.frequencies.norm(dim=1)
+    order = torch.argsort(norms)
+    ff.set_progress(0.0)
+    w = ff.weights[order]  # by increasing |B_k|
+    assert bool((w[1:] <= w[:-1]).all())  # lower frequencies are never less open
+    assert int((w == 1).sum()) == 31 and int((w == 0).sum()) == 150  # ranks < 0.15 open, ≥ 0.25 closed
+    x = torch.rand(7, 3) * 2 - 1
+    sin, cos = ff.sin_cos(x)
+    proj = 2 * math.pi * x @ ff.frequencies.T
+    torch.testing.assert_close(sin, proj.sin() * ff.weights)
+    torch.testing.assert_close(cos, proj.cos() * ff.weights)
+    ff.set_progress(0.25)  # half way through the opening: front at 0.25 + 0.85/2 = 0.675
+    assert int((ff.weights == 1).sum()) == 116 and int((ff.weights == 0).sum()) == 65  # ranks ≤ 0.575, ≥ 0.675
+    for progress in (0.5, 0.9, 1.0):
+        ff.set_progress(progress)
+        assert bool((ff.weights == 1).all())
+        torch.testing.assert_close(ff(x), plain(x))
+    assert plain.weights is None and "weights" not in plain.state_dict()  # without it, checkpoints are as before
+    assert "weights" in ff.state_dict()
+
+
+@pytest.mark.parametrize("coarse_to_fine", [0.0, 0.5])
+def test_coarse_to_fine_closed_form_matches_autograd(coarse_to_fine):
+    """With half-open frequencies, nn.field_gradient (w folded into the first layer's columns) against autograd
+    through the weighted features: f, ∇f and every parameter gradient in float64."""
+    from deepcurrents.nn.field_gradient import field_and_gradient
+
+    torch.manual_seed(7)
+    model = paper_current(num_frequencies=16, width=12, depth=2, coarse_to_fine=coarse_to_fine).double()
+    model.encoding.set_progress(0.2)
+    if coarse_to_fine:
+        assert 0 < float(model.encoding.weights.sum()) < 16
+    x = torch.rand(40, 3, dtype=torch.float64) * 2 - 1
+    f, grad = field_and_gradient(model.mlp, model.encoding, x)
+    f_ref, grad_ref = _plain_autograd(model, x)
+    assert _relative_error(f, f_ref) <= 1e-12 and _relative_error(grad, grad_ref) <= 1e-10
+    params = list(model.mlp.parameters())
+    ours = torch.autograd.grad(current_loss(grad), params, allow_unused=True)
+    ref = torch.autograd.grad(current_loss(grad_ref), params, allow_unused=True)
+    for a, b in zip(ours, ref, strict=True):
         assert _relative_error(a, b) <= 1e-10

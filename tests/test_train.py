@@ -130,3 +130,21 @@ def test_datamodule_streams_differ_per_rank_and_resume_step():
     trefoil = np.stack([np.sin(t) + 2 * np.sin(2 * t), np.cos(t) - 2 * np.cos(2 * t), -np.sin(3 * t)], 1) / 6
     closed_length = np.linalg.norm(np.roll(trefoil, -1, axis=0) - trefoil, axis=1).sum()
     assert datamodule.boundary.length() == pytest.approx(closed_length, rel=1e-5)
+
+
+def test_coarse_to_fine_features_follow_the_budget_and_travel_in_checkpoints(tmp_path):
+    """model.rff.coarse_to_fine: each step's weights are set from the budget used (step / max_steps here); the
+    checkpoint carries them, so a checkpoint evaluates (and resumes) with the weights it trained under."""
+    from deepcurrents.models.loading import load_module
+
+    cfg = compose_cfg(["experiment=minimal_trefoil", *TINY, "model.rff.coarse_to_fine=1.0"])
+    train(cfg, out_dir=tmp_path / "run")
+    state = torch.load(tmp_path / "run/checkpoints/last.ckpt", weights_only=True)["state_dict"]
+    encoding = load_module(tmp_path / "run/checkpoints/last.ckpt").current.encoding
+    expected = encoding.weights.clone()
+    encoding.set_progress(5 / 6)  # the last step (global step 5 of 6) trained under these
+    torch.testing.assert_close(expected, encoding.weights)
+    torch.testing.assert_close(state["current.encoding.weights"], expected)
+    assert float(expected.mean()) < 1  # not every frequency is open at 5/6 of a budget that opens them over all of it
+    with pytest.raises(UserInputError, match=r"model.rff.coarse_to_fine=2.0 must be a fraction"):
+        build(compose_cfg(["experiment=minimal_trefoil", *TINY, "model.rff.coarse_to_fine=2"]))

@@ -19,10 +19,12 @@ from deepcurrents.errors import ConfigError, NonFiniteLossError, positive_int
 from deepcurrents.eval.metrics import mesh_summary
 from deepcurrents.eval.plots import MeshView, plot_mesh
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
+from deepcurrents.nn.fourier import FourierFeatures
 
 CHECKPOINT_KEY = "deepcurrents"
 
 
+RFF_KEYS = {"num_frequencies", "sigma", "enabled", "seed", "coarse_to_fine", "coarse_start"}
 GRID_ENCODING_KEYS = {"levels", "base_resolution", "finest_resolution", "features", "table_size", "init_scale",
                       "lr_factor"}
 
@@ -30,17 +32,25 @@ GRID_ENCODING_KEYS = {"levels", "base_resolution", "finest_resolution", "feature
 def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None,
                    grid_encoding: dict[str, Any] | None = None) -> dict[str, Any]:
     """``model.net`` (the MLP: width, depth, activation, alpha_scale, ...), ``model.rff`` (the random
-    Fourier features: num_frequencies, sigma, enabled, seed) and ``model.grid_encoding`` (learned multiresolution
-    grid features, ``nn.MultiresGrid``; levels 0 = off) as the keyword arguments of ``NeuralCurrent``
-    and ``FamilyCurrent``, checked: impossible sizes stop the run with one sentence naming the key."""
+    Fourier features: num_frequencies, sigma, enabled, seed; coarse_to_fine and coarse_start, nn.FourierFeatures)
+    and ``model.grid_encoding`` (learned multiresolution grid features, ``nn.MultiresGrid``; levels 0 = off) as
+    the keyword arguments of ``NeuralCurrent`` and ``FamilyCurrent``, checked: impossible sizes stop the run with
+    one sentence naming the key."""
     rff = dict(rff or {})
-    unknown = set(rff) - {"num_frequencies", "sigma", "enabled", "seed"}
+    unknown = set(rff) - RFF_KEYS
     if unknown:
-        raise ConfigError(f"model.rff has unknown keys {sorted(unknown)}; it takes num_frequencies, sigma, "
-                          "enabled and seed.")
+        raise ConfigError(f"model.rff has unknown keys {sorted(unknown)}; it takes {', '.join(sorted(RFF_KEYS))}.")
     kwargs = dict(net)
     kwargs.update(num_frequencies=rff.get("num_frequencies", 1024), sigma=rff.get("sigma", 2.0),
                   rff=bool(rff.get("enabled", True)), rff_seed=rff.get("seed"))
+    coarse_to_fine, coarse_start = float(rff.get("coarse_to_fine", 0.0)), float(rff.get("coarse_start", 0.25))
+    if not 0.0 <= coarse_to_fine <= 1.0:
+        raise ConfigError(f"model.rff.coarse_to_fine={coarse_to_fine} must be a fraction of the budget in [0, 1] "
+                          "(0: every frequency from the start).")
+    if not 0.0 < coarse_start <= 1.0:
+        raise ConfigError(f"model.rff.coarse_start={coarse_start} must be a fraction of the frequencies in (0, 1].")
+    if coarse_to_fine > 0:
+        kwargs.update(coarse_to_fine=coarse_to_fine, coarse_start=coarse_start)
     for group, key in (("rff", "num_frequencies"), ("net", "width"), ("net", "depth")):
         positive_int(f"model.{group}.{key}", kwargs.get(key, 1))
     if not float(kwargs["sigma"]) > 0:
@@ -121,6 +131,13 @@ class DeepCurrentsModule(L.LightningModule):
 
     def on_train_start(self) -> None:
         self._train_start = time.perf_counter()
+        self._coarse_to_fine = [m for m in self.modules() if isinstance(m, FourierFeatures) and m.weights is not None]
+
+    def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
+        # coarse-to-fine Fourier features open with the budget used (steps or seconds), as the cosine lr does;
+        # (recomputed from the restored step and clock, so a resumed run sets the weights the uninterrupted one had)
+        for encoding in getattr(self, "_coarse_to_fine", ()):
+            encoding.set_progress(trainer_progress(self.trainer, self.global_step))
 
     def on_train_end(self) -> None:
         self.train_seconds = self.elapsed_train_seconds()

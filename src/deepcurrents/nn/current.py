@@ -32,6 +32,7 @@ class NeuralCurrent(nn.Module):
     backward, the default) or "autograd" (autograd through the MLP, the reference); the same numbers.
     ``grid``: keyword arguments of ``MultiresGrid`` (levels, base_resolution, finest_resolution, features,
     table_size, init_scale) for learned grid features beside the Fourier features (not in the paper); None: off.
+    ``coarse_to_fine``, ``coarse_start``: the Fourier frequencies open during training (``FourierFeatures``).
     """
 
     gradient: str = "closed_form"
@@ -52,13 +53,16 @@ class NeuralCurrent(nn.Module):
         rff_seed: int | None = None,
         zero_init_output: bool = True,
         grid: dict | None = None,
+        coarse_to_fine: float = 0.0,
+        coarse_start: float = 0.25,
     ):
         super().__init__()
         if dim not in (2, 3):
             raise ConfigError(f"model.dim={dim} must be 2 or 3.")
         self.dim = dim
         self.alpha_scale = alpha_scale
-        self.encoding = FourierFeatures(dim, num_frequencies, sigma, enabled=rff, seed=rff_seed)
+        self.encoding = FourierFeatures(dim, num_frequencies, sigma, enabled=rff, seed=rff_seed,
+                                        coarse_to_fine=coarse_to_fine, coarse_start=coarse_start)
         self.grid = MultiresGrid(dim, seed=rff_seed, **grid) if grid else None
         self.mlp = FieldMLP(self.encoding.out_dim + (self.grid.out_dim if self.grid else 0), width, depth, activation)
         if zero_init_output:

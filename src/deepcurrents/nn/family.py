@@ -54,7 +54,8 @@ class FamilyCurrent(nn.Module):
         num_shapes: training shapes (rows of the latent embedding).
         num_loops: boundary loops B per shape (the same for the whole family).
         latent_dim, boundary_dim: sizes of z and of each z_Γb (paper: 256, 256).
-        num_frequencies, sigma, rff, width, depth, activation, alpha_scale, rff_seed: as ``NeuralCurrent``.
+        num_frequencies, sigma, rff, width, depth, activation, alpha_scale, rff_seed, coarse_to_fine,
+            coarse_start: as ``NeuralCurrent``.
         latent_std: standard deviation of the initial codes (paper: 0.1).
         zero_init_output: zero the decoder's last layer (f ≡ const at the start; False: PyTorch's default).
     """
@@ -75,6 +76,8 @@ class FamilyCurrent(nn.Module):
         rff_seed: int | None = None,
         latent_std: float = 0.1,
         zero_init_output: bool = True,
+        coarse_to_fine: float = 0.0,
+        coarse_start: float = 0.25,
     ):
         super().__init__()
         for key, value in (("num_shapes", num_shapes), ("num_loops", num_loops), ("latent_dim", latent_dim),
@@ -85,7 +88,8 @@ class FamilyCurrent(nn.Module):
         self.latents = nn.Embedding(int(num_shapes), int(latent_dim))
         nn.init.normal_(self.latents.weight, mean=0.0, std=float(latent_std))
         self.encoders = nn.ModuleList(BoundaryEncoder(int(boundary_dim)) for _ in range(self.num_loops))
-        self.encoding = FourierFeatures(3, num_frequencies, sigma, enabled=rff, seed=rff_seed)
+        self.encoding = FourierFeatures(3, num_frequencies, sigma, enabled=rff, seed=rff_seed,
+                                        coarse_to_fine=coarse_to_fine, coarse_start=coarse_start)
         self.code_dim = int(latent_dim) + self.num_loops * int(boundary_dim)
         self.mlp = FieldMLP(self.code_dim + self.encoding.out_dim, width, depth, activation)
         if zero_init_output:  # f starts constant (ω = α) for every code, as NeuralCurrent does

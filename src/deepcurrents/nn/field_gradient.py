@@ -78,6 +78,9 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
         params += [lin.weight, lin.bias]
     if first_layer is not None:
         params[:2] = first_layer
+    weights = encoding.feature_weights() if encoding.enabled else None
+    if weights is not None:  # coarse-to-fine features: (w ⊙ φ) W_1ᵀ = φ (W_1 diag w)ᵀ; autograd carries w to W_1's grad
+        params[0] = params[0] * weights
     freqs = encoding.frequencies if encoding.enabled else None
     # inside no_grad the Function still reports its inputs as needing gradients: decide here
     keep = torch.is_grad_enabled() and any(p.requires_grad for p in params)

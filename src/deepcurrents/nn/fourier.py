@@ -10,20 +10,53 @@ from torch.autograd.function import once_differentiable
 
 
 class FourierFeatures(nn.Module):
-    """x ↦ [sin(2π Bx), cos(2π Bx)], B ~ N(0, σ²) of shape (num_frequencies, in_dim), frozen (a buffer).
+    """x ↦ [w ⊙ sin(2π Bx), w ⊙ cos(2π Bx)], B ~ N(0, σ²) of shape (num_frequencies, in_dim), frozen (a buffer).
+
+    w = 1 (the paper) unless ``coarse_to_fine`` > 0 (beyond the paper): then the frequencies open in order of
+    |B_k| as training proceeds (``set_progress``): the ``coarse_start`` fraction with the smallest |B_k| from the
+    first step, the rest ramping in by the fraction ``coarse_to_fine`` of the budget, after which w = 1 and the
+    features are the plain ones. A smooth f is cheap to reach with few frequencies and the high ones are only
+    needed to sharpen the jump late (the coarse-to-fine encodings of BARF, Lin et al. 2021, and SAPE, Hertz et
+    al. 2021). The weights are a buffer, so a checkpoint taken mid-run evaluates as it trained.
 
     With ``enabled=False`` it is the identity (the paper's "no RFF" ablation).
     (N, in_dim) → (N, out_dim), out_dim = 2·num_frequencies (or in_dim when disabled).
     """
 
+    RAMP = 0.1  # a frequency's weight ramps from 0 to 1 while the front passes this fraction of the ranks
+
     def __init__(self, in_dim: int, num_frequencies: int = 1024, sigma: float = 2.0, enabled: bool = True,
-                 seed: int | None = None):
+                 seed: int | None = None, coarse_to_fine: float = 0.0, coarse_start: float = 0.25):
         super().__init__()
         self.in_dim = in_dim
         self.enabled = enabled
         gen = torch.Generator().manual_seed(seed) if seed is not None else None
         freqs = torch.randn(num_frequencies if enabled else 0, in_dim, generator=gen) * sigma
         self.register_buffer("frequencies", freqs)
+        self.coarse_to_fine, self.coarse_start = float(coarse_to_fine), float(coarse_start)
+        if self.coarse_to_fine > 0 and enabled:
+            # rank of each frequency by |B_k| in [0, 1): the order in which they open
+            order = torch.argsort(freqs.norm(dim=1))
+            ranks = torch.empty(len(order))
+            ranks[order] = torch.arange(len(order), dtype=torch.float32) / max(len(order), 1)
+            self.register_buffer("ranks", ranks, persistent=False)
+            self.register_buffer("weights", torch.ones(len(order)))
+            self.set_progress(0.0)
+        else:
+            self.weights = None
+
+    def set_progress(self, progress: float) -> None:
+        """w at the fraction ``progress`` ∈ [0, 1] of the training budget (no-op without coarse_to_fine)."""
+        if self.weights is None:
+            return
+        t = min(max(progress / self.coarse_to_fine, 0.0), 1.0)
+        front = self.coarse_start + (1.0 + self.RAMP - self.coarse_start) * t
+        ramp = ((front - self.ranks) / self.RAMP).clamp_(0.0, 1.0)
+        self.weights.copy_(0.5 - 0.5 * torch.cos(math.pi * ramp))
+
+    def feature_weights(self) -> torch.Tensor | None:
+        """w repeated for [sin, cos], (2K,), or None when every weight is 1 by construction."""
+        return None if self.weights is None else torch.cat([self.weights, self.weights])
 
     @property
     def out_dim(self) -> int:
@@ -37,11 +70,14 @@ class FourierFeatures(nn.Module):
     def sin_cos(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(sin(2π Bx), cos(2π Bx)), each (N, num_frequencies)."""
         proj = (2.0 * math.pi) * (x @ self.frequencies.T)
-        return torch.sin(proj), torch.cos(proj)
+        if self.weights is None:
+            return torch.sin(proj), torch.cos(proj)
+        return torch.sin(proj) * self.weights, torch.cos(proj) * self.weights
 
     def input_gradient(self, grad_features: torch.Tensor, sin: torch.Tensor, cos: torch.Tensor) -> torch.Tensor:
         """Chain rule through the features: ∇_x f from ∂f/∂features. (N, 2K), (N, K), (N, K) → (N, in_dim).
 
+        ``sin`` and ``cos`` as ``sin_cos`` returns them (weighted: the Jacobian of the weighted features).
         Differentiable in ``grad_features`` (so the current loss can be backpropagated to the MLP), with a
         hand-written backward that reuses sin and cos: autograd's double backward through sin/cos would
         recompute them and materialise several more (N, 2K) products (see benchmarks/train_step.py).
