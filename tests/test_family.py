@@ -228,6 +228,33 @@ def test_augmentation_keeps_a_mesh_near_the_wall_inside_the_domain(tmp_path):
     assert np.abs(mesh.vertices).max() + 0.05 > 0.98  # without the restriction some shifts would leave
 
 
+
+def test_mesh_scale_scales_the_whole_mesh_about_the_origin_and_is_off_by_default(family_dir):
+    mesh = load_family([family_dir / "001_saddle.ply"])[0]
+    # off (the default): the paper's draws only, 2 per loop + 3 angles + 3 shifts, so its streams are unchanged
+    gen, ref = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+    augment_mesh(mesh.skinning, mesh.loops, gen, AugmentationRanges())
+    torch.rand(2 * len(mesh.loops) + 6, generator=ref, dtype=torch.float64)
+    assert torch.equal(torch.rand(4, generator=gen), torch.rand(4, generator=ref))
+    # on, with the paper's transformations off: s × the vertices (moved back inside the domain where a large s
+    # takes it out, and only then), s log-uniform in [0.5, 2]
+    ranges = AugmentationRanges(rotation_deg=0.0, scale=(1.0, 1.0), shift=0.0, mesh_scale=(0.5, 2.0))
+    gen = torch.Generator().manual_seed(0)
+    factors = []
+    for _ in range(200):
+        v, aug = augment_mesh(mesh.skinning, mesh.loops, gen, ranges)
+        np.testing.assert_allclose(v - aug.shift, aug.mesh_scale * mesh.vertices, atol=1e-10)
+        assert np.abs(v).max() <= ranges.bound + 1e-12
+        inside = np.abs(aug.mesh_scale * mesh.vertices).max() <= ranges.bound
+        assert np.all(aug.shift == 0.0) == inside
+        factors.append(aug.mesh_scale)
+    factors = np.asarray(factors)
+    assert factors.min() >= 0.5 and factors.max() <= 2.0 and factors.min() < 0.6 and factors.max() > 1.7
+    assert abs(np.mean(factors < 1.0) - 0.5) < 0.1  # log-uniform: as many shrunk as grown (200 draws, σ 0.035)
+    with pytest.raises(ConfigError, match="mesh_scale_range"):
+        FamilyDataModule(str(family_dir), mesh_scale_range=[0.0, 2.0])
+
+
 # ------------------------------------------------------------------------------- loop matching and data
 def test_loops_are_matched_and_aligned_across_meshes(tmp_path):
     open_cylinder().export(tmp_path / "a.ply")

@@ -10,6 +10,13 @@ Per mesh and step:
 4. it is shifted by t ~ U[−0.05, 0.05]³, restricted per axis to the shifts that keep every vertex
    inside [−bound, bound]³ (uniform over what remains).
 
+Beyond the paper, off by default (``mesh_scale`` = (1, 1)): before the rotation the whole mesh may be scaled
+about the origin by s, log s ~ U[log low, log high] (so that ×0.5 and ×2 are equally likely). The
+parts of ``make data`` are each centred at the origin with one scale per category, so a smaller body's part is
+close to a scaled copy of a larger one about the origin (hand 000's wrist × 2.1 lies within 0.03 of hand 002's),
+and a code then also sees the wrists of its neighbours' sizes and places; the paper's loop scaling (about each
+loop's centroid, ×0.85–1.15) cannot reach a wrist twice as wide and 0.18 away.
+
 Steps 1–2 and 3 commute in distribution (the cotangent Laplacian and the principal directions rotate
 with the mesh), so this is the paper's order "rotate, rescale loops, propagate, shift". The authors scaled
 loops about the origin and added a per-loop offset; scaling about the loop's centroid keeps the loop in
@@ -40,12 +47,15 @@ class AugmentationRanges:
     scale: each loop's two principal scales from U[scale[0], scale[1]].
     shift: each coordinate of the translation from U[−shift, shift].
     bound: the augmented mesh stays inside [−bound, bound]³ (the domain is [−1, 1]³).
+    mesh_scale: the whole mesh scaled about the origin by a log-uniform factor in [low, high] (beyond the
+        paper; (1, 1), the default, draws nothing, so the paper's random streams are unchanged).
     """
 
     rotation_deg: float = 10.0
     scale: tuple[float, float] = (0.85, 1.15)
     shift: float = 0.05
     bound: float = 0.98
+    mesh_scale: tuple[float, float] = (1.0, 1.0)
 
     def __post_init__(self):
         if not 0 <= self.rotation_deg <= 180:
@@ -57,18 +67,23 @@ class AugmentationRanges:
             raise ConfigError(f"data.shift={self.shift} must be non-negative.")
         if not 0 < self.bound <= 1:
             raise ConfigError(f"data.bound={self.bound} must be in (0, 1] (the domain is [-1, 1]^3).")
+        lo, hi = self.mesh_scale
+        if not 0 < lo <= hi:
+            raise ConfigError(f"data.mesh_scale_range={list(self.mesh_scale)} must be [low, high] with "
+                              "0 < low ≤ high.")
 
 
 @dataclass
 class Augmentation:
     """What one augmentation drew: rotation (3, 3), angles (3,) in radians, per-loop scales (B, 2),
-    shift (3,), rotation centre (3,)."""
+    shift (3,), rotation centre (3,), the whole mesh's scale about the origin (1 when not drawn)."""
 
     rotation: np.ndarray
     angles: np.ndarray
     scales: np.ndarray
     shift: np.ndarray
     centre: np.ndarray
+    mesh_scale: float = 1.0
 
 
 def euler_rotation(angles: np.ndarray) -> np.ndarray:
@@ -127,9 +142,15 @@ def augment_mesh(
                               for idx, (s1, s2) in zip(loops, scales, strict=True)])
     v = skinning.deform(targets)
 
+    mesh_scale = 1.0
+    if ranges.mesh_scale != (1.0, 1.0):  # drawn only when asked for: the paper's streams stay as they were
+        log_lo, log_hi = np.log(ranges.mesh_scale)
+        mesh_scale = float(np.exp(_uniform(generator, 1, log_lo, log_hi)[0]))
+        v = v * mesh_scale
+
     angles = np.deg2rad(_uniform(generator, 3, -ranges.rotation_deg, ranges.rotation_deg))
     rot = euler_rotation(angles)
-    centre = 0.5 * (vertices.min(0) + vertices.max(0))
+    centre = mesh_scale * 0.5 * (vertices.min(0) + vertices.max(0))  # the (scaled) box centre
     v = centre + (v - centre) @ rot.T
 
     t = _uniform(generator, 3, -ranges.shift, ranges.shift)
@@ -145,4 +166,4 @@ def augment_mesh(
     inside = a <= b
     frac = (t + ranges.shift) / (2 * ranges.shift) if ranges.shift > 0 else np.full(3, 0.5)
     t = np.where(inside, a + frac * (b - a), np.clip(0.0, flo, fhi))
-    return v + t, Augmentation(rot, angles, scales, t, centre)
+    return v + t, Augmentation(rot, angles, scales, t, centre, mesh_scale)

@@ -244,6 +244,8 @@ class FamilyDataModule(L.LightningDataModule):
         meshes_per_batch: shapes per step and rank (paper: 8).
         num_samples: ambient samples per mesh (paper: 4000); num_surface_samples: surface samples per mesh.
         augment, rotation_deg, scale_range, shift, bound: the augmentation (``data.augment``).
+        mesh_scale_range: [low, high] of a log-uniform scale of the whole mesh about the origin (beyond the
+            paper; [1, 1], the default, is off; ``data.augment.AugmentationRanges``).
         boundary_sigma, boundary_weighting: the metric's boundary weighting (as reconstruction).
         num_workers: DataLoader worker processes (augmentation and sampling run there).
     """
@@ -265,6 +267,7 @@ class FamilyDataModule(L.LightningDataModule):
         boundary_weighting: bool = True,
         num_workers: int = 0,
         seed: int = 0,
+        mesh_scale_range: Sequence[float] = (1.0, 1.0),
     ):
         super().__init__()
         for key, value in (("meshes_per_batch", meshes_per_batch), ("num_samples", num_samples),
@@ -272,12 +275,14 @@ class FamilyDataModule(L.LightningDataModule):
             positive_int(f"data.{key}", value)
         if num_workers < 0:
             raise ConfigError(f"data.num_workers={num_workers} must be zero or positive.")
-        if len(scale_range) != 2:
-            raise ConfigError(f"data.scale_range={list(scale_range)} must be [low, high].")
+        for key, value in (("scale_range", scale_range), ("mesh_scale_range", mesh_scale_range)):
+            if len(value) != 2:
+                raise ConfigError(f"data.{key}={list(value)} must be [low, high].")
         if not boundary_sigma > 0:
             raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
         self.ranges = AugmentationRanges(float(rotation_deg), (float(scale_range[0]), float(scale_range[1])),
-                                         float(shift), float(bound))
+                                         float(shift), float(bound),
+                                         (float(mesh_scale_range[0]), float(mesh_scale_range[1])))
         train, kept_out = split_held_out(family_files(path), max_meshes, held_out)
         # loaded together: held-out loops are matched to the same reference (the first training mesh)
         loaded = load_family(train + kept_out, bound=self.ranges.bound)
