@@ -24,7 +24,7 @@ def test_train_writes_metrics_mesh_checkpoint_and_resumes(tmp_path):
         assert (out / name).is_file(), name
     saved = json.loads((out / "metrics.json").read_text())
     assert saved["steps"] == 6 and saved == json.loads(json.dumps(metrics))
-    for key in ("loss", "mass_area", "mesh_area", "boundary_error", "train_seconds"):
+    for key in ("loss", "mass_area", "mesh_area", "boundary_error", "train_seconds", "evaluation_seconds"):
         assert key in saved
     ckpt = torch.load(out / "checkpoints/last.ckpt", weights_only=False)
     assert ckpt["deepcurrents"]["module"].endswith("CurrentModule")

@@ -21,6 +21,7 @@ import ctypes
 import json
 import logging
 import sys
+import time
 from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
@@ -183,7 +184,11 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
         log.warning("Training was interrupted; evaluating the model as it is.")
     if not trainer.is_global_zero:
         return None
+    started = time.perf_counter()
     metrics = module.final_evaluation(out_dir)
+    if metrics is not None:  # the final evaluation's own cost, beside train_seconds (issue: at most a fifth of it)
+        metrics["evaluation_seconds"] = round(time.perf_counter() - started, 3)
+        module.write_metrics(out_dir, metrics)
     log.info("metrics: %s", json.dumps(metrics))
     for cb in trainer.callbacks:  # final media (deepcurrents.models.callbacks.MediaCallback) before loggers close
         hook = getattr(cb, "on_final_evaluation", None)
