@@ -293,10 +293,11 @@ class AutodecoderModule(DeepCurrentsModule):
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         losses = self.compute_losses(batch)
         self.check_finite(losses["loss"])
-        size = int(batch["index"].numel())
-        for key, value in losses.items():
-            self.log(f"train/{key}", value, prog_bar=key == "loss", batch_size=size)
-        self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=size)
+        if self.logs_this_step():
+            size = int(batch["index"].numel())
+            for key, value in losses.items():
+                self.log(f"train/{key}", value, prog_bar=key == "loss", batch_size=size)
+            self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"], batch_size=size)
         return losses["loss"]
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:

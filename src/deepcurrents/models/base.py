@@ -143,6 +143,20 @@ class DeepCurrentsModule(L.LightningModule):
         self.train_seconds = self.elapsed_train_seconds()
         self._train_start = None  # a checkpoint written after training must not count the time since
 
+    def logs_this_step(self) -> bool:
+        """Whether Lightning writes this training step's logged values to the loggers: every
+        ``trainer.log_every_n_steps`` steps (counted as Lightning does, step + 1), when the trainer stops, and on the
+        last step of a step budget (whose values the final metrics read from ``trainer.callback_metrics``).
+        ``self.log`` on the other steps only refreshes the progress bar, and its bookkeeping cost about 4 ms
+        a step, a sixth of a ``preset=cpu`` step on two cores (benchmarks/README, "Training step"), so the
+        model kinds log only on these steps; the loggers receive the same values."""
+        trainer = self._trainer
+        if trainer is None:  # called outside a fit (a test): log as Lightning would decide
+            return True
+        every, step = int(trainer.log_every_n_steps or 0), self.global_step + 1
+        last = trainer.max_steps is not None and 0 < trainer.max_steps <= step  # its values end in callback_metrics
+        return every > 0 and (step % every == 0 or trainer.should_stop or last)
+
     # ----------------------------------------------------------------------------------- checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint[CHECKPOINT_KEY] = {

@@ -110,11 +110,12 @@ class CurrentModule(DeepCurrentsModule):
         _, omega = self.current(batch["x"], create_graph=True, alpha=batch.get("alpha"))
         loss = current_loss(omega, batch.get("metric"), batch.get("weight"))
         self.check_finite(loss)
-        self.log("train/loss", loss, prog_bar=True)
-        # the extraction-free area (length in 2D) bound, from this batch; an upper bound only for B = I
-        mass_name = "train/mass_area" if self.dim == 3 else "train/mass_length"
-        self.log(mass_name, mass_to_area(float(loss.detach()), self.dim, self.current.alpha_scale), prog_bar=True)
-        self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
+        if self.logs_this_step():
+            self.log("train/loss", loss, prog_bar=True)
+            # the extraction-free area (length in 2D) bound, from this batch; an upper bound only for B = I
+            mass_name = "train/mass_area" if self.dim == 3 else "train/mass_length"
+            self.log(mass_name, mass_to_area(float(loss.detach()), self.dim, self.current.alpha_scale), prog_bar=True)
+            self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
         return loss
 
     @torch.no_grad()

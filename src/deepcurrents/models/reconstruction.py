@@ -146,12 +146,13 @@ class ReconstructionModule(CurrentModule):
         losses = self.compute_losses(batch)
         loss = losses["loss"]
         self.check_finite(loss)
-        self.log("train/loss", loss, prog_bar=True)
-        self.log("train/current_loss", losses["current_loss"], prog_bar=True)
-        for key in ("surface_loss", "mass_loss"):
-            if key in losses:
-                self.log(f"train/{key}", losses[key])
-        self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
+        if self.logs_this_step():
+            self.log("train/loss", loss, prog_bar=True)
+            self.log("train/current_loss", losses["current_loss"], prog_bar=True)
+            for key in ("surface_loss", "mass_loss"):
+                if key in losses:
+                    self.log(f"train/{key}", losses[key])
+            self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
         return loss
 
     mesh_method = "level_set"  # the metric leaves ω along n free off the surface (see eval.meshing.mesh_method)
