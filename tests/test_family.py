@@ -489,3 +489,21 @@ def test_ddp_on_two_cpu_processes_end_to_end(family_dir, tmp_path):
     assert metrics["steps"] == 4 and metrics["shapes_evaluated"] == 1
     ckpt = torch.load(out / "checkpoints" / "last.ckpt", weights_only=False)
     assert ckpt["global_step"] == 4
+
+
+def test_grid_summary_counts_a_member_closed_only_when_its_whole_border_is_gamma():
+    """meshes_closed_on_boundary: every loop zipped AND boundary error ≈ 0; a member that zipped its loop but
+    has a hole elsewhere (boundary error 0.47, as a torn interpolant measured) is not closed."""
+    from deepcurrents.cli.families import summarise
+
+    loops = [np.zeros((4, 3))]
+    records = [
+        {"boundary_loops_closed": 1, "boundary_error": 1.5e-8, "_loops": loops},   # closed
+        {"boundary_loops_closed": 1, "boundary_error": 0.47, "_loops": loops},     # zipped, but a hole
+        {"boundary_loops_closed": 0, "boundary_error": 0.05, "_loops": loops},     # left open
+        {"boundary_loops_closed": 0, "boundary_error": None, "_loops": loops},     # empty mesh
+        {"boundary_loops_closed": 1, "boundary_error": 0.0, "_loops": loops + loops},  # one of two loops zipped
+    ]
+    summary = summarise(records)
+    assert summary["meshes_closed_on_boundary"] == 1 and summary["empty_meshes"] == 1
+    assert summary["boundary_error_max"] == 0.47
