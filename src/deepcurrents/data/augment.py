@@ -15,7 +15,7 @@ about the origin by s, log s ~ U[log low, log high] (so that ×0.5 and ×2 are e
 parts of ``make data`` are each centred at the origin with one scale per category, so a smaller body's part is
 close to a scaled copy of a larger one about the origin (hand 000's wrist × 2.1 lies within 0.03 of hand 002's),
 and a code then also sees the wrists of its neighbours' sizes and places; the paper's loop scaling (about each
-loop's centroid, ×0.85–1.15) cannot reach a wrist twice as wide and 0.18 away.
+loop's centroid, ×0.85–1.15) cannot reach a wrist twice as wide and 0.20 away.
 
 Steps 1–2 and 3 commute in distribution (the cotangent Laplacian and the principal directions rotate
 with the mesh), so this is the paper's order "rotate, rescale loops, propagate, shift". The authors scaled
