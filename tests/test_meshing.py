@@ -350,3 +350,27 @@ def test_phase_curve_of_an_untrained_2d_current_is_the_segment():
     assert extract_curve_2d(current, resolution=127, delta=0.0, method="level_set") == []
     with pytest.raises(ValueError, match="method"):
         extract_curve_2d(current, method="magic")
+
+
+def test_the_phase_sums_the_solid_angle_in_float64():
+    """φ = f/(2·alpha_scale) + Ω/2 with Ω in float64 (meshing.grid_angle.phase_from_f): summed in float32, the
+    Borromean rings' grid mesh gained extra sheets (1.4433 → 1.6782, README Fig. 4), though float32 Ω is within
+    2.7e-3 rad; checked against the float64 closed form and the float32 one at points around the rings."""
+    from deepcurrents.eval.meshing.grid_angle import phase_from_f
+    from deepcurrents.geometry import borromean_rings
+    from deepcurrents.geometry.biot_savart import solid_angle
+
+    loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in borromean_rings()]
+
+    class Rings:  # what phase_from_f reads of a current
+        alpha_scale = 1e-3
+
+    Rings.loops = loops
+    x = torch.rand(4000, 3, generator=torch.Generator().manual_seed(0)) * 1.6 - 0.8
+    f = torch.rand(4000, generator=torch.Generator().manual_seed(1)) * 1e-2
+    phase = phase_from_f(Rings(), x, f)
+    exact = f.double() / 2e-3 + 0.5 * solid_angle(x.double(), [lp.double() for lp in loops])
+    assert phase.dtype == torch.float64
+    assert float((phase - exact).abs().max()) < 1e-9
+    single = f.double() / 2e-3 + 0.5 * solid_angle(x, loops).double()
+    assert float((single - exact).abs().max()) > 1e-6  # float32 would not pass the line above
