@@ -147,9 +147,9 @@ class DeepCurrentsModule(L.LightningModule):
         """Whether Lightning writes this training step's logged values to the loggers: every
         ``trainer.log_every_n_steps`` steps (counted as Lightning does, step + 1), when the trainer stops, and on the
         last step of a step budget (whose values the final metrics read from ``trainer.callback_metrics``).
-        ``self.log`` on the other steps only refreshes the progress bar, and its bookkeeping cost about 4 ms
-        a step, a sixth of a ``preset=cpu`` step on two cores (benchmarks/README, "Training step"), so the
-        model kinds log only on these steps; the loggers receive the same values."""
+        ``self.log`` on the other steps only refreshes the progress bar; its bookkeeping was 8 % of a one-thread
+        ``preset=cpu`` step under cProfile, though within the noise on the idle machine (benchmarks/README,
+        "Training step"), so the model kinds log only on these steps; the loggers receive the same values."""
         trainer = self._trainer
         if trainer is None:  # called outside a fit (a test): log as Lightning would decide
             return True
