@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import statistics
 import sys
@@ -108,7 +109,7 @@ def main() -> None:
           f"log_when_written / bare: {med['log_when_written'] / med['bare']:.3f}")
     result = {"steps": args.steps, "threads": args.threads, "overrides": overrides, "seconds_per_step": rows,
               "median": med, "machine": platform.processor() or platform.machine(),
-              "load_average": list(__import__("os").getloadavg())}
+              "load_average": list(os.getloadavg())}
     out = ROOT / "benchmarks" / "results" / f"{args.out}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2))

@@ -75,7 +75,8 @@ class ClosestPointModule(DeepCurrentsModule):
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         loss = ((self(batch["x"]) - batch["closest"]) ** 2).sum(-1).mean()
         self.check_finite(loss)
-        self.log("train/loss", loss, prog_bar=True)
+        if self.logs_this_step():
+            self.log("train/loss", loss, prog_bar=True)
         return loss
 
     def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
