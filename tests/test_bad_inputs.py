@@ -139,6 +139,7 @@ TRAIN_CASES = [
     ("lr zero", overrides("experiment=minimal_trefoil", "model.optim.lr=0"), r"model\.optim\.lr"),
     ("gamma above one", overrides("experiment=minimal_trefoil", "model.optim.gamma=1.5"), r"model\.optim\.gamma"),
     ("step_size zero", overrides("experiment=minimal_trefoil", "model.optim.step_size=0"), "step_size"),
+    ("fused not a boolean", overrides("experiment=minimal_trefoil", "model.optim.fused=maybe"), r"model\.optim\.fused"),
     ("max_steps negative", overrides("experiment=minimal_trefoil", "trainer.max_steps=-5"), "max_steps"),
     ("max_steps fraction", overrides("experiment=minimal_trefoil", "trainer.max_steps=2.5"), "max_steps"),
     ("max_time not a duration", overrides("experiment=minimal_trefoil", "trainer.max_time=soon"), "max_time"),

@@ -112,3 +112,87 @@ def test_closed_form_jacobian_equals_autograd(table_size):
     jac = torch.autograd.functional.jacobian(g, x)        # (6, 6, 6, 3)
     assert torch.allclose(features, g(x))
     assert torch.allclose(jacobian, torch.stack([jac[i, :, i, :] for i in range(len(x))]), atol=1e-12)
+
+
+@pytest.mark.parametrize("rff", [True, False])
+@pytest.mark.parametrize("coarse_to_fine", [0.0, 0.5])
+def test_hand_written_pass_with_grid_features_matches_autograd(rff, coarse_to_fine):
+    """NeuralCurrent with grid features takes nn.field_gradient's pass (the grid's features and Jacobian handed in
+    beside the Fourier features); against the autograd path in float64: f, ω and the gradients of every
+    parameter, the grid's table included, for a loss that sees both f and ω."""
+    from deepcurrents.geometry import circle
+    from deepcurrents.losses import current_loss
+    from deepcurrents.nn import NeuralCurrent
+
+    torch.manual_seed(5)
+    current = NeuralCurrent(3, loops=[torch.tensor(circle(0.5, n=32))], num_frequencies=8, width=16, depth=2,
+                            zero_init_output=False, rff_seed=0, rff=rff, coarse_to_fine=coarse_to_fine,
+                            grid={"levels": 3, "base_resolution": 2, "finest_resolution": 7, "table_size": 50,
+                                  "init_scale": 0.5}).double()
+    current.encoding.set_progress(0.2)
+    x = torch.rand(40, 3, generator=torch.Generator().manual_seed(6), dtype=torch.float64) * 1.8 - 0.9
+    weights = torch.rand(40, dtype=torch.float64, generator=torch.Generator().manual_seed(7))
+    results = {}
+    for gradient in ("closed_form", "autograd"):
+        current.gradient = gradient
+        f, omega = current(x, create_graph=True)
+        loss = current_loss(omega) + (weights * f).mean()
+        results[gradient] = (f, omega, torch.autograd.grad(loss, list(current.parameters())))
+    (f, omega, grads), (f_ref, omega_ref, grads_ref) = results["closed_form"], results["autograd"]
+    assert torch.allclose(f, f_ref, rtol=1e-12, atol=1e-14)
+    assert torch.allclose(omega, omega_ref, rtol=1e-10, atol=1e-13)
+    for (name, _), a, b in zip(current.named_parameters(), grads, grads_ref, strict=True):
+        assert torch.allclose(a, b, rtol=1e-9, atol=1e-12), name
+    assert grads[[n for n, _ in current.named_parameters()].index("grid.table")].abs().sum() > 0
+
+
+def test_hand_written_pass_with_grid_features_passes_gradcheck():
+    """The hand-written backward's gradients for the extra features and their Jacobian (and the weights) against
+    finite differences of its own forward."""
+    from deepcurrents.nn.field_gradient import _FieldGradient
+    from deepcurrents.nn.fourier import FourierFeatures
+
+    gen = torch.Generator().manual_seed(8)
+    encoding = FourierFeatures(3, 3, 2.0, seed=0).double()
+    x = torch.rand(6, 3, generator=gen, dtype=torch.float64) * 2 - 1
+    extra = torch.randn(6, 2, generator=gen, dtype=torch.float64).requires_grad_(True)
+    extra_jac = torch.randn(6, 2, 3, generator=gen, dtype=torch.float64).requires_grad_(True)
+    shapes = [(5, 8), (5,), (5, 5), (5,), (1, 5), (1,)]
+    params = [torch.randn(*s, generator=gen, dtype=torch.float64).requires_grad_(True) for s in shapes]
+
+    def run(extra, extra_jac, *params):
+        return _FieldGradient.apply(x, encoding.frequencies, ("softplus", 1.0, 20.0), True, extra, extra_jac, *params)
+
+    assert torch.autograd.gradcheck(run, (extra, extra_jac, *params), eps=1e-6, atol=1e-8, rtol=1e-6)
+
+
+def test_fused_adam_is_an_option_with_the_loops_numbers():
+    """model.optim.fused=true builds PyTorch's fused Adam; a step of it moves every weight (grid table included) as
+    the authors' loop implementation does, up to rounding."""
+    from deepcurrents.geometry import circle
+    from deepcurrents.models import CurrentModule
+
+    def module(fused: bool) -> CurrentModule:
+        torch.manual_seed(0)
+        return CurrentModule({"loops": [circle(0.5, n=16).tolist()]},
+                             {"width": 8, "depth": 1, "zero_init_output": False},
+                             {"lr": 1e-2, "step_size": 10, "gamma": 0.5, "fused": fused},
+                             rff={"num_frequencies": 4, "seed": 0},
+                             grid_encoding={"levels": 2, "base_resolution": 2, "finest_resolution": 4,
+                                            "init_scale": 0.1})
+
+    x = torch.rand(64, 3, generator=torch.Generator().manual_seed(1)) * 1.8 - 0.9
+    moved = []
+    for fused in (False, True):
+        m = module(fused)
+        opt = m.configure_optimizers()["optimizer"]
+        assert bool(opt.defaults["fused"]) == fused
+        before = [p.detach().clone() for p in m.parameters()]
+        _, omega = m.current(x)
+        omega.norm(dim=-1).mean().backward()
+        opt.step()
+        moved.append([p.detach() - b for p, b in zip(m.parameters(), before, strict=True)])
+    for loop, fused in zip(*moved, strict=True):  # (the output's constant does not move: ω does not see it)
+        assert torch.allclose(loop, fused, rtol=1e-4, atol=1e-7)
+    names = [n for n, _ in module(False).named_parameters()]
+    assert moved[0][names.index("current.grid.table")].abs().max() > 0

@@ -203,7 +203,7 @@ def test_hand_written_gradient_network_passes_gradcheck():
     params = tuple(p.detach().clone().requires_grad_(True) for p in model.mlp.parameters())
 
     def run(*params):
-        return _FieldGradient.apply(x, model.encoding.frequencies, ("softplus", 1.0, 20.0), True, *params)
+        return _FieldGradient.apply(x, model.encoding.frequencies, ("softplus", 1.0, 20.0), True, None, None, *params)
 
     assert torch.autograd.gradcheck(run, params, eps=1e-6, atol=1e-8, rtol=1e-6)
 

@@ -76,7 +76,7 @@ class DeepCurrentsModule(L.LightningModule):
 
     ``optim`` ({"lr", "step_size", "gamma"}: Adam with lr × gamma every step_size steps; optional
     "schedule": "cosine" with "warmup" and "min_factor" follows the run's budget instead, models.schedules;
-    optional "betas": Adam's) may be None for
+    optional "betas": Adam's; optional "fused": PyTorch's fused Adam kernel) may be None for
     models that bring their own optimiser (the grid baseline's ADMM overrides ``configure_optimizers``).
     Training time (``train_seconds``) counts only the fit loop, across resumes: it is carried by every
     checkpoint and restored from it.
@@ -102,7 +102,10 @@ class DeepCurrentsModule(L.LightningModule):
     def configure_optimizers(self):
         optim = self.hparams.optim
         betas = tuple(float(b) for b in optim.get("betas") or (0.9, 0.999))
-        opt = torch.optim.Adam(self.parameter_groups(float(optim["lr"])), lr=float(optim["lr"]), betas=betas)
+        # fused: one kernel per step instead of a dozen passes (6x faster over a grid encoding's 0.8 M-entry table
+        # on one CPU thread); off by default, since it rounds differently from the loop the authors' recipe ran
+        opt = torch.optim.Adam(self.parameter_groups(float(optim["lr"])), lr=float(optim["lr"]), betas=betas,
+                               fused=bool(optim.get("fused", False)) or None)
         if optim.get("schedule", "step") == "cosine":  # the horizon is the budget (models.schedules)
             sched = BudgetCosine(opt, lambda: trainer_progress(self.trainer, self.global_step),
                                  float(optim.get("warmup", 0.0)), float(optim.get("min_factor", 0.0)))

@@ -60,7 +60,7 @@ class BudgetCosine(torch.optim.lr_scheduler.LambdaLR):
 
 
 def check_schedule(optim: dict) -> None:
-    """One sentence naming the model.optim key that is wrong (schedule, warmup, min_factor, betas)."""
+    """One sentence naming the model.optim key that is wrong (schedule, warmup, min_factor, betas, fused)."""
     schedule = optim.get("schedule", "step")
     if schedule not in SCHEDULES:
         raise ConfigError(f"model.optim.schedule={schedule!r} must be one of {', '.join(SCHEDULES)}.")
@@ -73,6 +73,9 @@ def check_schedule(optim: dict) -> None:
     betas = optim.get("betas")
     if betas is not None and (len(betas) != 2 or not all(0.0 <= float(b) < 1.0 for b in betas)):
         raise ConfigError(f"model.optim.betas={list(betas)} must be two numbers in [0, 1).")
+    fused = optim.get("fused", False)
+    if not isinstance(fused, bool):
+        raise ConfigError(f"model.optim.fused={fused!r} must be true or false.")
 
 
 def trainer_progress(trainer, step: int, elapsed: float | None = None) -> float:

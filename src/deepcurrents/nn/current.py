@@ -111,10 +111,11 @@ class NeuralCurrent(nn.Module):
         Fourier features by their closed-form Jacobian. Same numbers either way (tests/test_nn.py).
         """
         x = x.detach()
-        # the hand-written pass covers the MLP on Fourier features; grid features go through autograd below
-        if self.gradient == "closed_form" and self.grid is None and closed_form_supported(self.mlp, self.encoding):
+        # the hand-written pass: the MLP on the Fourier features and, if any, the grid features after them
+        extra_dim = self.grid.out_dim if self.grid is not None else 0
+        if self.gradient == "closed_form" and closed_form_supported(self.mlp, self.encoding, extra_dim=extra_dim):
             with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
-                f, grad_f = field_and_gradient(self.mlp, self.encoding, x)
+                f, grad_f = field_and_gradient(self.mlp, self.encoding, x, grid=self.grid)
             return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
         with torch.enable_grad():
             # autograd to the MLP's input features, then each encoding's closed-form Jacobian (Fourier: 2πB cos/sin;

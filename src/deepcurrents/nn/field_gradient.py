@@ -40,16 +40,17 @@ from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
 
 
-def closed_form_supported(mlp: nn.Module, encoding: nn.Module, code_dim: int = 0) -> bool:
+def closed_form_supported(mlp: nn.Module, encoding: nn.Module, code_dim: int = 0, extra_dim: int = 0) -> bool:
     """Whether ``field_and_gradient`` can run ``mlp`` on ``encoding``: a ``FieldMLP`` (Linear/activation pairs,
     Softplus or ReLU, then a Linear with one output) on ``FourierFeatures`` (enabled or the identity), after
-    ``code_dim`` code inputs (a conditioned decoder, ``first_layer``)."""
+    ``code_dim`` code inputs (a conditioned decoder, ``first_layer``) and before ``extra_dim`` features of
+    another encoding (``grid``)."""
     if not isinstance(mlp, FieldMLP) or not isinstance(encoding, FourierFeatures):
         return False
     layers = list(mlp.net)
     if len(layers) < 3 or len(layers) % 2 == 0 or layers[-1].out_features != 1:
         return False
-    if layers[0].in_features != code_dim + encoding.out_dim:
+    if layers[0].in_features != code_dim + encoding.out_dim + extra_dim:
         return False
     return all(isinstance(lin, nn.Linear) and isinstance(act, (nn.Softplus, nn.ReLU))
                for lin, act in zip(layers[:-1:2], layers[1::2], strict=True))
@@ -57,7 +58,7 @@ def closed_form_supported(mlp: nn.Module, encoding: nn.Module, code_dim: int = 0
 
 def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor,
                        first_layer: tuple[torch.Tensor, torch.Tensor] | None = None,
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
+                       grid: nn.Module | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """f = mlp(encoding(x)) and ∇_x f, differentiable in the MLP's parameters (not in x).
 
     x: (N, d) → (f (N,), ∇f (N, d)). The same numbers as autograd (tests/test_nn.py: float64, relative
@@ -66,7 +67,13 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     ``first_layer`` = (W_φ (width, F), c (S, width)): a decoder conditioned on a code per shape, whose first
     layer's code columns and bias are folded into c = W_code·code + b (computed by the caller, so its gradient
     reaches the code by autograd); x is then (S, N, d) → ((S, N), (S, N, d)), z_1 = φ W_φᵀ + c per shape.
+
+    ``grid``: a second encoding whose features follow the Fourier features in the MLP's input, given with their
+    x-Jacobian by ``grid.features_and_jacobian`` (``nn.MultiresGrid``): ∇f gains Σ_j (∂f/∂e_j) ∇e_j, and the
+    backward hands the features and their Jacobian their gradients, which autograd carries on to the grid's table.
     """
+    if grid is not None and first_layer is not None:
+        raise ValueError("field_and_gradient: grid features are not supported with a conditioned first layer.")
     layers = list(mlp.net)
     act = layers[1]
     if isinstance(act, nn.Softplus):
@@ -78,17 +85,23 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
         params += [lin.weight, lin.bias]
     if first_layer is not None:
         params[:2] = first_layer
+    points = x.detach().reshape(-1, x.shape[-1])
+    extra = extra_jac = None
+    if grid is not None:
+        extra, extra_jac = grid.features_and_jacobian(points)  # (P, G), (P, G, d), linear in the grid's table
     weights = encoding.feature_weights() if encoding.enabled else None
     if weights is not None:  # coarse-to-fine features: (w ⊙ φ) W_1ᵀ = φ (W_1 diag w)ᵀ; autograd carries w to W_1's grad
+        if extra is not None:
+            weights = torch.cat([weights, weights.new_ones(extra.shape[1])])
         params[0] = params[0] * weights
     freqs = encoding.frequencies if encoding.enabled else None
     # inside no_grad the Function still reports its inputs as needing gradients: decide here
-    keep = torch.is_grad_enabled() and any(p.requires_grad for p in params)
-    points = x.detach().reshape(-1, x.shape[-1])
+    keep = torch.is_grad_enabled() and any(p.requires_grad for p in
+                                           (*params, *((extra, extra_jac) if extra is not None else ())))
     # in the parameters' precision even under autocast (mixed-precision training): the backward's products mix
     # saved activations with the weights and need one dtype; the mass loss is sensitive to rounding anyway
     with torch.autocast(points.device.type, enabled=False):
-        f, grad = _FieldGradient.apply(points, freqs, spec, keep, *params)
+        f, grad = _FieldGradient.apply(points, freqs, spec, keep, extra, extra_jac, *params)
     return f.reshape(x.shape[:-1]), grad.reshape(x.shape)
 
 
@@ -118,24 +131,30 @@ def _signed_frequencies(freqs: torch.Tensor) -> torch.Tensor:
 
 
 class _FieldGradient(torch.autograd.Function):
-    """(x, B or None, spec, keep, W_1, b_1, …, W_L, b_L, w_o, b_o) ↦ (f (N,), ∇f (N, d)); see the module doc.
-    ``keep``: a backward will follow (training), so keep what it needs. b_1 may be (S, W): one bias per
-    group of N / S consecutive rows (a conditioned decoder)."""
+    """(x, B or None, spec, keep, e or None, J_e or None, W_1, b_1, …, W_L, b_L, w_o, b_o) ↦ (f (N,), ∇f (N, d));
+    see the module doc. ``keep``: a backward will follow (training), so keep what it needs. b_1 may be (S, W):
+    one bias per group of N / S consecutive rows (a conditioned decoder). e (N, G) are extra features after
+    the Fourier features (or after x), J_e (N, G, d) their x-Jacobian."""
 
     @staticmethod
-    def forward(ctx, x, freqs, spec, keep, *params):
+    def forward(ctx, x, freqs, spec, keep, extra, extra_jac, *params):
         weights, biases = params[0::2], params[1::2]
         depth = len(weights) - 1
+        width = 0 if extra is None else extra.shape[1]
         if freqs is not None:
             k = freqs.shape[0]
+            base = 2 * k
             proj = x @ freqs.T
             proj.mul_(2.0 * math.pi)  # the same rounding as FourierFeatures.sin_cos
-            a = x.new_empty(x.shape[0], 2 * k)
+            a = x.new_empty(x.shape[0], base + width)
             torch.sin(proj, out=a[:, :k])
-            torch.cos(proj, out=a[:, k:])
+            torch.cos(proj, out=a[:, k:base])
+            if extra is not None:
+                a[:, base:] = extra
             del proj
         else:
-            a = x
+            base = x.shape[1]
+            a = x if extra is None else torch.cat([x, extra], dim=1)
         inputs, derivs = [], []
         for w, b in zip(weights[:-1], biases[:-1], strict=True):
             if b.dim() == 2:  # one bias per shape, as FamilyCurrent.decode adds it (the same rounding)
@@ -159,19 +178,27 @@ class _FieldGradient(torch.autograd.Function):
                 curvature = torch.addcmul(deltas[layer], s, deltas[layer], value=-1.0)
                 curvatures[layer] = curvature.mul_(spec[1]) if spec[1] != 1.0 else curvature
             g = deltas[layer] @ weights[layer]
+        g_extra = None
+        if extra is not None:  # ∇f gains Σ_j g_j ∇e_j: (N, 1, G) @ (N, G, d)
+            g_extra = g[:, base:].contiguous()
+            extra_grad = torch.bmm(g_extra.unsqueeze(1), extra_jac).squeeze(1)
         if freqs is not None:  # ∇f = 2π (g_sin ⊙ cos − g_cos ⊙ sin) B, g ⊙ [cos, sin] in place
             phi = inputs[0]
-            g[:, :k].mul_(phi[:, k:])
-            g[:, k:].mul_(phi[:, :k])
+            g[:, :k].mul_(phi[:, k:base])
+            g[:, k:base].mul_(phi[:, :k])
             # (3, 2K) @ (2K, N): MKL is slow at an (N, 2K) @ (2K, 3) product with three output columns
-            grad = (_signed_frequencies(freqs) @ g.T).T
+            grad = (_signed_frequencies(freqs) @ g[:, :base].T).T
         else:
-            grad = g
+            grad = g[:, :base] if extra is not None else g
+        if extra is not None:
+            grad = grad + extra_grad
         del g
         if keep:
-            ctx.depth, ctx.rff = depth, freqs is not None
-            ctx.save_for_backward(*([freqs] if freqs is not None else []), *params, *inputs, *derivs, *deltas,
-                                  *(c for c in curvatures if c is not None))
+            ctx.depth, ctx.rff, ctx.extra = depth, freqs is not None, extra is not None
+            ctx.base = base
+            ctx.save_for_backward(*([freqs] if freqs is not None else []),
+                                  *((extra_jac, g_extra) if extra is not None else ()), *params, *inputs,
+                                  *derivs, *deltas, *(c for c in curvatures if c is not None))
         ctx.set_materialize_grads(False)
         return f, grad
 
@@ -181,11 +208,14 @@ class _FieldGradient(torch.autograd.Function):
         depth = ctx.depth
         saved = list(ctx.saved_tensors)
         freqs = saved.pop(0) if ctx.rff else None
+        extra_jac, g_extra = (saved.pop(0), saved.pop(0)) if ctx.extra else (None, None)
+        base = ctx.base
         params, saved = saved[:2 * depth + 2], saved[2 * depth + 2:]
         weights, biases = params[0::2], params[1::2]
         inputs, saved = saved[:depth + 1], saved[depth + 1:]
         derivs, deltas, curvatures = saved[:depth], saved[depth:2 * depth], saved[2 * depth:]
         w_bar: list[torch.Tensor | None] = [None] * (depth + 1)
+        jac_bar = extra_bar = None
         z_bar: list[torch.Tensor | None] = [None] * depth
         if grad_bar is not None:
             # the reverse sweep's adjoint, from the features up: ḡ_0 = J_φ ω̄ = 2π [cos ⊙ ω̄Bᵀ, −sin ⊙ ω̄Bᵀ]
@@ -194,10 +224,14 @@ class _FieldGradient(torch.autograd.Function):
                 phi = inputs[0]
                 # (N, 3) @ (3, 2K), both contiguous (ω̄ from the norm's backward is not): 4-10× faster
                 g_bar = grad_bar.contiguous() @ _signed_frequencies(freqs)
-                g_bar[:, :k].mul_(phi[:, k:])
+                g_bar[:, :k].mul_(phi[:, k:base])
                 g_bar[:, k:].mul_(phi[:, :k])
             else:
                 g_bar = grad_bar
+            if extra_jac is not None:  # ḡ_e = J_e ω̄, and ∂L/∂J_e = g_e ⊗ ω̄
+                omega_bar = grad_bar.unsqueeze(-1)
+                jac_bar = g_extra.unsqueeze(-1) * omega_bar.transpose(1, 2)
+                g_bar = torch.cat([g_bar, torch.bmm(extra_jac, omega_bar).squeeze(-1)], dim=1)
             for layer in range(depth):
                 w_bar[layer] = deltas[layer].T @ g_bar
                 delta_bar = g_bar @ weights[layer].T
@@ -227,8 +261,10 @@ class _FieldGradient(torch.autograd.Function):
             w_z = zb.T @ inputs[layer] if w_bar[layer] is None else torch.addmm(w_bar[layer], zb.T, inputs[layer])
             w_bar[layer] = w_z
             a_bar = zb @ weights[layer] if layer > 0 else None
+            if layer == 0 and extra_jac is not None:  # ∂L/∂e through z_1 = [φ | e] W_1ᵀ + b_1
+                extra_bar = zb @ weights[0][:, base:]
         grads = []
         for layer in range(depth):
             grads += [w_bar[layer], b_bar[layer]]
         grads += [w_bar[depth], b_out_bar]
-        return (None, None, None, None, *grads)
+        return (None, None, None, None, extra_bar, jac_bar, *grads)

@@ -13,6 +13,7 @@ import math
 
 import torch
 from torch import nn
+from torch.autograd.function import once_differentiable
 
 from deepcurrents.errors import ConfigError
 
@@ -59,55 +60,95 @@ class MultiresGrid(nn.Module):
     def out_dim(self) -> int:
         return self.levels * self.features
 
-    def vertex_index(self, vertex: torch.Tensor) -> torch.Tensor:
-        """Row of ``table`` for integer grid vertices (N, L, C, dim) on every level → (N, L, C)."""
-        res = self.resolutions.view(1, -1, 1)
-        dense = torch.zeros_like(vertex[..., 0])
-        for d in reversed(range(self.dim)):  # x fastest: i + (r+1)(j + (r+1)k)
-            dense = dense * (res + 1) + vertex[..., d]
-        hashed = torch.zeros_like(dense)
-        for d in range(self.dim):
-            hashed = hashed ^ (vertex[..., d] * _PRIMES[d])
-        size = self.sizes.view(1, -1, 1)
-        index = torch.where(self.hashed.view(1, -1, 1), hashed % size, dense)
-        return index + self.offsets[:-1].view(1, -1, 1)
-
     def _cells(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Per level, the table rows of the 2^dim corners of x's cell (N, L, C) and x's position in it (N, L, dim),
-        the latter still differentiable in x."""
-        u = (x.clamp(-1.0, 1.0).unsqueeze(1) + 1.0) * (0.5 * self.resolutions.view(1, -1, 1).to(x.dtype))
-        cell = torch.minimum(u.detach().floor().long(), self.resolutions.view(1, -1, 1) - 1)
-        index = self.vertex_index(cell.unsqueeze(2) + self.corners.view(1, 1, *self.corners.shape))
-        return index, u - cell.to(x.dtype)
+        """Per level, the table rows of the 2^dim corners of x's cell, (C, L, N) with the corners in
+        ``self.corners``' order, and x's position in its cell, (dim, L, N), still differentiable in x.
 
-    def _corner_values(self, index: torch.Tensor) -> torch.Tensor:
-        """Table rows (N, L, C) → values (N, L, C, F); index_select's backward is one index_add."""
-        return self.table.index_select(0, index.reshape(-1)).view(*index.shape, self.features)
+        Laid out corner- and level-major (points innermost) so that every product and sum below runs over
+        contiguous rows of N points: the (N, L, C, ·) layout made PyTorch's CPU kernels broadcast over tiny
+        trailing dimensions, 4-5x slower.
+        """
+        res = self.resolutions.view(1, -1, 1)                                  # (1, L, 1)
+        u = (x.clamp(-1.0, 1.0).T.unsqueeze(1) + 1.0) * (0.5 * res.to(x.dtype))  # (dim, L, N)
+        cell = torch.minimum(u.detach().floor().long(), res - 1)              # (dim, L, N)
+        shape = (2,) * self.dim + cell.shape[1:]
+        dense = torch.zeros((), dtype=torch.long, device=x.device)
+        hashed = torch.zeros((), dtype=torch.long, device=x.device)
+        stride = torch.ones_like(res)
+        for d in range(self.dim):  # corner (c_0, …, c_{dim-1}) varies c_{dim-1} fastest, as itertools.product
+            view = [1] * self.dim + [1, 1]
+            view[d] = 2
+            step = torch.arange(2, device=x.device).view(view)
+            vertex_d = cell[d] + step                                          # (…2 at axis d…, L, N)
+            dense = dense + vertex_d * stride                                  # x fastest: i + (r+1)(j + (r+1)k)
+            hashed = hashed ^ (vertex_d * _PRIMES[d])
+            stride = stride * (res + 1)
+        dense, hashed = dense.expand(shape), hashed.expand(shape)
+        index = torch.where(self.hashed.view(-1, 1), hashed % self.sizes.view(-1, 1), dense)
+        index = index + self.offsets[:-1].view(-1, 1)
+        return index.reshape(-1, *cell.shape[1:]), u - cell.to(x.dtype)
+
+    def _factors(self, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Multilinear weights w_c = Π_d (t_d or 1 − t_d), (C, L, N), as an outer product over the dims, and,
+        if ``t`` is not needed for autograd, their x-derivatives ∂w_c/∂x_d = ±(res/2) Π_{e≠d} (…), (dim, C, L, N)."""
+        pairs = [torch.stack([1.0 - t[d], t[d]]) for d in range(self.dim)]   # each (2, L, N)
+
+        def outer(factors: list[torch.Tensor]) -> torch.Tensor:
+            out = factors[0]
+            for f in factors[1:]:
+                out = out.unsqueeze(1) * f.unsqueeze(0)
+                out = out.reshape(-1, *f.shape[1:])
+            return out                                                          # (2^dim, L, N)
+
+        weights = outer(pairs)
+        if t.requires_grad:
+            return weights, None
+        half_res = (0.5 * self.resolutions.to(t.dtype)).view(-1, 1)
+        sign = torch.tensor([-1.0, 1.0], dtype=t.dtype, device=t.device).view(2, 1, 1)
+        slopes = torch.stack([outer([*pairs[:d], (sign * half_res).expand_as(pairs[d]), *pairs[d + 1:]])
+                              for d in range(self.dim)])
+        return weights, slopes
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Features (N, L·F), differentiable in x and in the table."""
         index, t = self._cells(x)
-        tc = t.unsqueeze(2)
-        # multilinear weights Π_d (t_d or 1 − t_d): (N, L, C)
-        weights = torch.where(self.corners.view(1, 1, *self.corners.shape).bool(), tc, 1.0 - tc).prod(-1)
-        return (weights.unsqueeze(-1) * self._corner_values(index)).sum(2).reshape(x.shape[0], -1)
+        weights, _ = self._factors(t)
+        values = self.table.index_select(0, index.reshape(-1)).T.reshape(self.features, *index.shape)
+        out = (weights.unsqueeze(0) * values).sum(1)                            # (F, L, N)
+        return out.permute(2, 1, 0).reshape(x.shape[0], -1)
 
     def features_and_jacobian(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The features (N, L·F) and their Jacobian ∂features/∂x (N, L·F, dim) in closed form, both linear in the
         table: the training step differentiates them once (in the table), not twice through the weights."""
         with torch.no_grad():
             index, t = self._cells(x)
-            on = self.corners.view(1, 1, *self.corners.shape).bool()           # (1, 1, C, dim)
-            factors = torch.where(on, t.unsqueeze(2), 1.0 - t.unsqueeze(2))     # (N, L, C, dim)
-            half_res = (0.5 * self.resolutions.to(x.dtype)).view(1, -1, 1)
-            # ∂w_c/∂x_d = ±(res/2) Π_{e≠d} factor_e, as products of slices (no gathers)
-            ones = torch.ones_like(factors[..., :1])
-            before = torch.cat([ones, factors[..., :-1]], -1).cumprod(-1)       # Π_{e<d}
-            after = torch.cat([factors[..., 1:], ones], -1).flip(-1).cumprod(-1).flip(-1)  # Π_{e>d}
-            slopes = (before * after) * (on.to(x.dtype) * 2.0 - 1.0) * half_res.unsqueeze(-1)
-            weights = before[..., -1] * factors[..., -1]                        # (N, L, C)
-            blend = torch.cat([weights.unsqueeze(-1), slopes], -1)              # (N, L, C, 1 + dim)
-        values = self._corner_values(index)                                     # (N, L, C, F)
-        # Σ_c over the corners as one broadcast product and sum: einsum would make thousands of tiny bmm's
-        both = (blend.unsqueeze(-2) * values.unsqueeze(-1)).sum(2)              # (N, L, F, 1 + dim)
+            weights, slopes = self._factors(t)
+            blend = torch.cat([weights.unsqueeze(0), slopes])                   # (1 + dim, C, L, N)
+        both = _Blend.apply(self.table, index, blend)                           # (1 + dim, F, L, N)
         n = x.shape[0]
-        return both[..., 0].reshape(n, -1), both[..., 1:].reshape(n, -1, self.dim)
+        return (both[0].permute(2, 1, 0).reshape(n, -1),
+                both[1:].permute(3, 2, 1, 0).reshape(n, -1, self.dim))
+
+
+class _Blend(torch.autograd.Function):
+    """out[k, f, l, n] = Σ_c blend[k, c, l, n] · table[index[c, l, n], f]: linear in the table, so its backward is
+    one product, a sum over k and one ``index_add`` (autograd's gather/broadcast/sum chain did the same work on
+    (N, L, C, F, 1 + dim) arrays)."""
+
+    @staticmethod
+    def forward(ctx, table: torch.Tensor, index: torch.Tensor, blend: torch.Tensor) -> torch.Tensor:
+        features = table.shape[1]
+        values = table.index_select(0, index.reshape(-1)).T.reshape(features, 1, *index.shape)  # (F, 1, C, L, N)
+        ctx.save_for_backward(index, blend)
+        ctx.table_shape = table.shape
+        return (blend.unsqueeze(1) * values.transpose(0, 1)).sum(2)            # (1 + dim, F, L, N)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, out_bar: torch.Tensor):
+        index, blend = ctx.saved_tensors
+        # values_bar[f, c, l, n] = Σ_k blend[k, c, l, n] · out_bar[k, f, l, n]
+        values_bar = (blend.unsqueeze(1) * out_bar.unsqueeze(2)).sum(0)         # (F, C, L, N)
+        table_bar = out_bar.new_zeros(ctx.table_shape)
+        table_bar.index_add_(0, index.reshape(-1), values_bar.reshape(values_bar.shape[0], -1).T)
+        return table_bar, None, None
