@@ -100,6 +100,22 @@ def test_losses_by_hand():
     assert surface_loss(torch.tensor([0.0]), torch.tensor([0.03]), 0.01).item() == pytest.approx(0.04)
 
 
+def test_surface_hinge_of_a_batch_by_hand():
+    """surface_hinge evaluates f at y ∓ εn: with f(x) = −c·z across the plane z = 0 (normal +z) the drop is
+    2εc, so the hinge is (δ − 2εc)^+ per sample; a family's (S, M, 3) batch gives the mean over all S·M."""
+    from deepcurrents.losses import surface_hinge
+
+    y = torch.tensor([[0.1, 0.2, 0.0], [-0.3, 0.0, 0.0]])
+    batch = {"surface_points": y, "surface_normals": torch.tensor([[0.0, 0.0, 1.0]] * 2),
+             "epsilon": torch.tensor([0.02, 0.005])}
+    for c in (0.1, 1.0):
+        expected = (max(0.01 - 2 * 0.02 * c, 0.0) + max(0.01 - 2 * 0.005 * c, 0.0)) / 2
+        assert surface_hinge(lambda p, c=c: -c * p[:, 2], batch, 0.01).item() == pytest.approx(expected)
+    family = {key: torch.stack([value, value.flip(0)]) for key, value in batch.items()}
+    assert surface_hinge(lambda p: -0.1 * p[..., 2], family, 0.01).item() == pytest.approx(
+        (0.01 - 0.004 + 0.01 - 0.001) / 2)
+
+
 def test_2d_current():
     model = NeuralCurrent(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
                           num_frequencies=8, width=8, depth=1)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
 
@@ -31,3 +33,16 @@ def surface_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, margin: float = 0.
     with the orientation of Γ taken from the mesh's boundary loops (see data/ for how Γ is oriented).
     """
     return torch.relu(margin - f_minus + f_plus).mean()
+
+
+def surface_hinge(f: Callable[[torch.Tensor], torch.Tensor], batch: dict[str, torch.Tensor],
+                  margin: float = 0.01) -> torch.Tensor:
+    """``surface_loss`` of a batch's surface samples: y = batch["surface_points"], n = batch["surface_normals"],
+    ε = batch["epsilon"], with f evaluated once on both sides, [y − εn | y + εn] stacked along the sample axis.
+
+    y: (M, 3) with f: (2M, 3) → (2M,) (one current), or (S, M, 3) with f: (S, 2M, 3) → (S, 2M) (a family,
+    one code per shape). → scalar."""
+    offset = batch["epsilon"].unsqueeze(-1) * batch["surface_normals"]
+    y = batch["surface_points"]
+    f_minus, f_plus = f(torch.cat([y - offset, y + offset], dim=-2)).chunk(2, dim=-1)
+    return surface_loss(f_minus.flatten(), f_plus.flatten(), margin)

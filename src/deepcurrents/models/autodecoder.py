@@ -28,7 +28,7 @@ from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
 from deepcurrents.eval.plots import plot_mesh_grid
-from deepcurrents.losses import current_loss, surface_loss
+from deepcurrents.losses import current_loss, surface_hinge
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
 
@@ -252,10 +252,8 @@ class AutodecoderModule(DeepCurrentsModule):
             losses["mass_loss"] = current_loss(omega.flatten(0, 1))
             loss = loss + self.hparams.mass_weight * losses["mass_loss"]
         if "surface_points" in batch and self.hparams.surface_weight > 0:
-            offset = batch["epsilon"].unsqueeze(-1) * batch["surface_normals"]
-            y = batch["surface_points"]
-            f_minus, f_plus = self.family.f(torch.cat([y - offset, y + offset], 1), code).chunk(2, dim=1)
-            losses["surface_loss"] = surface_loss(f_minus.flatten(), f_plus.flatten(), self.hparams.surface_margin)
+            losses["surface_loss"] = surface_hinge(lambda points: self.family.f(points, code), batch,
+                                                   self.hparams.surface_margin)
             loss = loss + self.hparams.surface_weight * losses["surface_loss"]
         if self.hparams.interpolation_weight > 0 and self.training:
             interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1])

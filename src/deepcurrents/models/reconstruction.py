@@ -16,7 +16,7 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.eval.meshing import flux_sign, region_of_interest
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface, unidirectional_chamfer
 from deepcurrents.eval.plots import MeshView, mesh_view, plot_mesh
-from deepcurrents.losses import current_loss, surface_loss
+from deepcurrents.losses import current_loss, surface_hinge
 from deepcurrents.models.current_module import CurrentModule
 
 
@@ -134,10 +134,7 @@ class ReconstructionModule(CurrentModule):
             out["mass_loss"] = current_loss(omega)
             loss = loss + self.mass_weight * out["mass_loss"]
         if "surface_points" in batch and self.surface_weight > 0:
-            offset = batch["epsilon"].unsqueeze(-1) * batch["surface_normals"]
-            y = batch["surface_points"]
-            f_minus, f_plus = self.current.f(torch.cat([y - offset, y + offset])).chunk(2)
-            out["surface_loss"] = surface_loss(f_minus, f_plus, self.surface_margin)
+            out["surface_loss"] = surface_hinge(self.current.f, batch, self.surface_margin)
             loss = loss + self.surface_weight * out["surface_loss"]
         out["loss"] = loss
         return out
