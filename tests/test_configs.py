@@ -143,15 +143,16 @@ COLUMNS = ("trainer.max_steps", "model.optim.step_size", "model.optim.lr", "mode
 # recon_baseline under preset=cpu ran 1000 steps (preset_sizes overrode the experiment) where its wall-time
 # budget is meant to stop it (1,000,000); and reconstructions, then minimal surfaces, under preset=cpu train at
 # lr 3e-3 with a cosine over the budget (preset_sizes/model/cpu_current.yaml, which cpu_reconstruction.yaml includes;
-# step_size is then unused).
+# step_size is then unused); and families under preset=cpu mesh at 80 in a cube of padding 0.5 (was 64 and 0.1:
+# σ = 4 shapes bulge out of the smaller cube; preset_sizes/data/cpu_family.yaml).
 # recon_part stands for every recon_<part> alias (tested below).
 # Columns in the order of COLUMNS; '-': the key is absent.
 LENGTHS_TABLE = """
 experiment          preset steps   step  lr     gamma samples surface freqs width depth ckpt  mass    ucd    mesh
 latent_hands        paper  300000  60000 0.0004 0.5   4000    4000    1024  256   4     10000 1048576 100000 128
-latent_hands        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  64
+latent_hands        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  80
 latent_heads        paper  300000  60000 0.0004 0.5   4000    4000    1024  256   4     10000 1048576 100000 128
-latent_heads        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  64
+latent_heads        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  80
 minimal_2d          paper  20000   2000  0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
 minimal_2d          cpu    3000    1000  0.003  0.6   2048    -       256   128   3     500   1048576 100000 128
 minimal_borromean   paper  100000  10000 0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
@@ -228,7 +229,7 @@ def test_models_read_the_one_evaluation_node(experiment, preset):
 
 def test_an_evaluation_override_reaches_the_module():
     cfg = compose_cfg(["experiment=latent_hands", "preset=cpu", "evaluation.ucd_samples=123"])
-    assert cfg.model.evaluation.ucd_samples == 123 and cfg.model.evaluation.mesh.resolution == 64
+    assert cfg.model.evaluation.ucd_samples == 123 and cfg.model.evaluation.mesh.resolution == 80
 
 
 def test_no_model_config_states_evaluation_values():
