@@ -19,7 +19,7 @@ from deepcurrents.data.targets import MeshTarget, target_sample
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.metrics import point_mesh_distance
 from deepcurrents.losses import current_loss
-from deepcurrents.models.autodecoder import AutodecoderModule
+from deepcurrents.models.autodecoder import AutodecoderModule, CheckpointMismatchError
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -193,3 +193,24 @@ def test_final_evaluation_reports_held_out_shapes(discs, tmp_path):
     target = trimesh.load(discs / "003_low_cap.ply", process=False)
     assert point_mesh_distance(target.sample(20000, seed=1), mesh).mean() == pytest.approx(float(held["ucd"]),
                                                                                           rel=0.1)
+
+
+def test_a_checkpoint_of_a_family_with_several_loops_is_checked_against_its_own_family():
+    """loop_lengths is (S, B): a two-loop family's own hyperparameters pass the check on loading (comparing its
+    rows as arrays raised 'truth value ... ambiguous' for B ≥ 2, so no heads checkpoint opened in the apps), and
+    one changed vertex count is refused in one sentence."""
+    rng = np.random.default_rng(0)
+    loops = [[rng.normal(size=(n, 3)) * 0.1 for n in (12 + i, 20)] for i in range(3)]
+    module = AutodecoderModule(
+        num_shapes=3, num_loops=2, shape_names=["a", "b", "c"],
+        net={"width": 16, "depth": 2, "activation": "softplus", "alpha_scale": 1e-3},
+        rff={"num_frequencies": 8, "sigma": 2.0, "enabled": True, "seed": 0},
+        optim={"lr": 1e-3, "step_size": 100, "gamma": 0.5}, latent_dim=4, boundary_dim=4,
+        train_loops=loops, train_bounds=[np.array([[-0.3] * 3, [0.3] * 3])] * 3)
+    saved = dict(module.hparams)
+    assert np.asarray(saved["loop_lengths"]).tolist() == [[12, 20], [13, 20], [14, 20]]
+    module.on_load_checkpoint({"hyper_parameters": saved})
+    other = {**saved, "loop_lengths": [[12, 20], [13, 21], [14, 20]]}
+    with pytest.raises(CheckpointMismatchError, match="boundary vertex counts differ") as info:
+        module.on_load_checkpoint({"hyper_parameters": other})
+    assert "\n" not in str(info.value)

@@ -308,7 +308,8 @@ class AutodecoderModule(DeepCurrentsModule):
         for key, what in (("num_loops", "boundary loops per shape"), ("num_shapes", "training shapes"),
                           ("shape_names", "training meshes"), ("loop_lengths", "boundary vertex counts"),
                           ("latent_dim", "latent size"), ("boundary_dim", "boundary code size")):
-            if key in saved and list(np.atleast_1d(saved[key])) != list(np.atleast_1d(self.hparams[key])):
+            # as nested lists: loop_lengths is (S, B), and comparing its rows as arrays is ambiguous for B ≥ 2
+            if key in saved and np.asarray(saved[key]).tolist() != np.asarray(self.hparams[key]).tolist():
                 detail = f" ({saved[key]} vs {self.hparams[key]})" if key in ("num_loops", "num_shapes") else ""
                 raise CheckpointMismatchError(
                     f"The checkpoint was trained on another family: its {what} differ from the "
