@@ -144,7 +144,8 @@ COLUMNS = ("trainer.max_steps", "model.optim.step_size", "model.optim.lr", "mode
 # budget is meant to stop it (1,000,000); and reconstructions, then minimal surfaces, under preset=cpu train at
 # lr 3e-3 with a cosine over the budget (preset_sizes/model/cpu_current.yaml, which cpu_reconstruction.yaml includes;
 # step_size is then unused); and families under preset=cpu mesh at 80 in a cube of padding 0.5 (was 64 and 0.1:
-# σ = 4 shapes bulge out of the smaller cube; preset_sizes/data/cpu_family.yaml).
+# σ = 4 shapes bulge out of the smaller cube; preset_sizes/data/cpu_family.yaml), except heads, which keep 64
+# with the former settings (preset_sizes/data/cpu_family_heads.yaml).
 # recon_part stands for every recon_<part> alias (tested below).
 # Columns in the order of COLUMNS; '-': the key is absent.
 LENGTHS_TABLE = """
@@ -152,7 +153,7 @@ experiment          preset steps   step  lr     gamma samples surface freqs widt
 latent_hands        paper  300000  60000 0.0004 0.5   4000    4000    1024  256   4     10000 1048576 100000 128
 latent_hands        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  80
 latent_heads        paper  300000  60000 0.0004 0.5   4000    4000    1024  256   4     10000 1048576 100000 128
-latent_heads        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  80
+latent_heads        cpu    1500    600   0.001  0.5   512     512     256   128   3     500   1048576 20000  64
 minimal_2d          paper  20000   2000  0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
 minimal_2d          cpu    3000    1000  0.003  0.6   2048    -       256   128   3     500   1048576 100000 128
 minimal_borromean   paper  100000  10000 0.0005 0.6   4096    -       1024  256   4     1000  1048576 100000 128
