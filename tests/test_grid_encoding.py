@@ -196,3 +196,14 @@ def test_fused_adam_is_an_option_with_the_loops_numbers():
         assert torch.allclose(loop, fused, rtol=1e-4, atol=1e-7)
     names = [n for n, _ in module(False).named_parameters()]
     assert moved[0][names.index("current.grid.table")].abs().max() > 0
+
+
+def test_state_dicts_with_the_former_corner_buffer_still_load():
+    """Grids saved while the corner order was a buffer ("corners") load into today's grid unchanged."""
+    g = grid()
+    state = dict(g.state_dict())
+    state["corners"] = torch.zeros(8, 3, dtype=torch.long)
+    fresh = MultiresGrid(3, levels=3, base_resolution=2, finest_resolution=7, features=2, init_scale=1.0,
+                         seed=1).double()
+    fresh.load_state_dict(state)
+    assert torch.equal(fresh.table, g.table)

@@ -51,18 +51,22 @@ class MultiresGrid(nn.Module):
                                                                                           strict=True)]))
         self.register_buffer("offsets", torch.tensor([0, *itertools.accumulate(sizes)], dtype=torch.long))
         self.register_buffer("sizes", torch.tensor(sizes, dtype=torch.long))
-        self.register_buffer("corners", torch.tensor(list(itertools.product((0, 1), repeat=dim)), dtype=torch.long))
         gen = torch.Generator().manual_seed(seed) if seed is not None else None
         table = (torch.rand(sum(sizes), features, generator=gen) * 2.0 - 1.0) * init_scale
         self.table = nn.Parameter(table)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # checkpoints written before the corner order became implicit in _cells carry a "corners" buffer
+        state_dict.pop(prefix + "corners", None)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     @property
     def out_dim(self) -> int:
         return self.levels * self.features
 
     def _cells(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Per level, the table rows of the 2^dim corners of x's cell, (C, L, N) with the corners in
-        ``self.corners``' order, and x's position in its cell, (dim, L, N), still differentiable in x.
+        """Per level, the table rows of the 2^dim corners of x's cell, (C, L, N), corner (c_0, …, c_{dim-1}) in
+        {0, 1}^dim at row Σ_d c_d 2^(dim-1-d), and x's position in its cell, (dim, L, N), still differentiable in x.
 
         Laid out corner- and level-major (points innermost) so that every product and sum below runs over
         contiguous rows of N points: the (N, L, C, ·) layout made PyTorch's CPU kernels broadcast over tiny
@@ -75,7 +79,7 @@ class MultiresGrid(nn.Module):
         dense = torch.zeros((), dtype=torch.long, device=x.device)
         hashed = torch.zeros((), dtype=torch.long, device=x.device)
         stride = torch.ones_like(res)
-        for d in range(self.dim):  # corner (c_0, …, c_{dim-1}) varies c_{dim-1} fastest, as itertools.product
+        for d in range(self.dim):  # axis d of the (2,)*dim corner block is c_d: c_{dim-1} varies fastest
             view = [1] * self.dim + [1, 1]
             view[d] = 2
             step = torch.arange(2, device=x.device).view(view)
@@ -88,9 +92,9 @@ class MultiresGrid(nn.Module):
         index = index + self.offsets[:-1].view(-1, 1)
         return index.reshape(-1, *cell.shape[1:]), u - cell.to(x.dtype)
 
-    def _factors(self, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def _factors(self, t: torch.Tensor, slopes: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Multilinear weights w_c = Π_d (t_d or 1 − t_d), (C, L, N), as an outer product over the dims, and,
-        if ``t`` is not needed for autograd, their x-derivatives ∂w_c/∂x_d = ±(res/2) Π_{e≠d} (…), (dim, C, L, N)."""
+        with ``slopes``, their x-derivatives ∂w_c/∂x_d = ±(res/2) Π_{e≠d} (…), (dim, C, L, N) (else None)."""
         pairs = [torch.stack([1.0 - t[d], t[d]]) for d in range(self.dim)]   # each (2, L, N)
 
         def outer(factors: list[torch.Tensor]) -> torch.Tensor:
@@ -101,7 +105,7 @@ class MultiresGrid(nn.Module):
             return out                                                          # (2^dim, L, N)
 
         weights = outer(pairs)
-        if t.requires_grad:
+        if not slopes:
             return weights, None
         half_res = (0.5 * self.resolutions.to(t.dtype)).view(-1, 1)
         sign = torch.tensor([-1.0, 1.0], dtype=t.dtype, device=t.device).view(2, 1, 1)
@@ -112,7 +116,7 @@ class MultiresGrid(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Features (N, L·F), differentiable in x and in the table."""
         index, t = self._cells(x)
-        weights, _ = self._factors(t)
+        weights, _ = self._factors(t, slopes=False)
         values = self.table.index_select(0, index.reshape(-1)).T.reshape(self.features, *index.shape)
         out = (weights.unsqueeze(0) * values).sum(1)                            # (F, L, N)
         return out.permute(2, 1, 0).reshape(x.shape[0], -1)
@@ -122,7 +126,7 @@ class MultiresGrid(nn.Module):
         table: the training step differentiates them once (in the table), not twice through the weights."""
         with torch.no_grad():
             index, t = self._cells(x)
-            weights, slopes = self._factors(t)
+            weights, slopes = self._factors(t, slopes=True)
             blend = torch.cat([weights.unsqueeze(0), slopes])                   # (1 + dim, C, L, N)
         both = _Blend.apply(self.table, index, blend)                           # (1 + dim, F, L, N)
         n = x.shape[0]
