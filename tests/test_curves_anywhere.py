@@ -22,6 +22,7 @@ from deepcurrents.experiments.runner import train
 from deepcurrents.geometry import biot_savart, circle, solid_angle
 from deepcurrents.geometry.curves import (
     SAFE_EXTENT,
+    SMALL_EXTENT,
     box_normalisation,
     enneper,
     enneper_area,
@@ -66,6 +67,31 @@ def test_box_normalisation_auto_only_beyond_the_safe_extent():
     np.testing.assert_allclose(model.min(0) + model.max(0), 0.0, atol=1e-12)
     assert (model.max(0) - model.min(0)).max() == pytest.approx(1.0)
     assert box_normalisation(beyond, False, 0.5, SAFE_EXTENT)[0] == 1.0
+
+
+def test_box_normalisation_auto_scales_up_small_curves(tmp_path, caplog):
+    """A curve whose box's half-size is below SMALL_EXTENT is centred and scaled up to the normalised box (auto
+    only, and only when a small extent is given); one at SMALL_EXTENT is left alone."""
+    small = np.array([[0.3, 0.3, 0.0], [0.3 + 0.2, 0.3 - 0.1, 0.05]])  # half-size 0.1, off centre
+    assert box_normalisation(small, "auto", 0.5, SAFE_EXTENT) == (1.0, pytest.approx(np.zeros(3)))
+    scale, offset = box_normalisation(small, "auto", 0.5, SAFE_EXTENT, small_extent=SMALL_EXTENT)
+    assert scale == pytest.approx(0.2)  # size 0.2 fitted to 1
+    np.testing.assert_allclose(offset, [0.4, 0.25, 0.025], atol=1e-12)
+    assert box_normalisation(small, False, 0.5, SAFE_EXTENT, small_extent=SMALL_EXTENT)[0] == 1.0
+    edge = np.array([[-SMALL_EXTENT, 0.0, 0.0], [SMALL_EXTENT, 0.1, 0.0]])
+    assert box_normalisation(edge, "auto", 0.5, SAFE_EXTENT, small_extent=SMALL_EXTENT)[0] == 1.0
+    # through the data module: a circle of radius 0.2 becomes one of radius 0.5, its map back exact
+    loop = circle(0.2, center=(0.1, 0.0, 0.0), n=64)
+    path = tmp_path / "small.txt"
+    np.savetxt(path, loop)
+    with caplog.at_level(logging.INFO):
+        boundary = MinimalSurfaceDataModule(curve=str(path)).boundary
+    assert "is small" in caplog.text
+    np.testing.assert_allclose(np.abs(boundary.loops[0]).max(0)[:2], [0.5, 0.5], atol=1e-3)
+    np.testing.assert_allclose(boundary.to_input(boundary.loops[0]), loop, atol=1e-12)
+    # the paper's named curves are not small: none of them moves
+    for name in ("trefoil", "borromean", "circle"):
+        assert not MinimalSurfaceDataModule(curve=name).boundary.normalized
 
 
 def test_millimetre_curve_is_normalised_and_maps_back_exactly(tmp_path, caplog):

@@ -73,8 +73,9 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
 
     3D: ``curve`` is a named curve (trefoil, hopf, borromean, circle, enneper) or a curve file, times
     ``curve_scale``. ``normalize`` (auto/true/false) centres and scales it into the box when it reaches
-    beyond the safe extent (see ``geometry.curves.SAFE_EXTENT``; the Boundary keeps the map back to the
-    input's coordinates); loops with more than ``max_vertices_per_loop`` vertices are resampled by arc length.
+    beyond the safe extent or is small (``geometry.curves.SAFE_EXTENT``, ``SMALL_EXTENT``; the Boundary keeps
+    the map back to the input's coordinates); loops with more than ``max_vertices_per_loop`` vertices are
+    resampled by arc length.
     2D: ``points`` [[x, y], ...] with ``signs`` [±1, ...].
     """
 
