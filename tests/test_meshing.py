@@ -9,7 +9,7 @@ import trimesh
 
 from deepcurrents.data.targets import mesh_boundary_loops
 from deepcurrents.eval.meshing import METHODS, MeshMethod, clip_by_field, extract_surface, zip_to_loop
-from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
+from deepcurrents.eval.meshing.border import MAX_FLOATING, close_onto_loops, cut_tube
 from deepcurrents.eval.metrics import boundary_error
 from deepcurrents.geometry import circle
 from deepcurrents.geometry.topology import border_loops
@@ -240,6 +240,34 @@ def test_one_border_along_gamma_is_zipped_whichever_way_it_runs():
     for gamma in (circle(0.5, n=200), circle(0.5, n=200)[::-1]):
         _, _, zipped = close_onto_loops(v, f, [gamma], 0.01, 0.05)
         assert zipped == 1
+
+
+@pytest.mark.parametrize("cap_radius, dropped", [(0.07, True), (0.12, False)])
+def test_a_loose_cap_joined_to_no_loop_is_dropped_once_the_surface_is_zipped(cap_radius, dropped):
+    """A disk spanning Γ (R = 0.3) and a small disk beside it that no border of Γ's tube reaches (a loose cap,
+    z = −0.1, its border not along Γ): the disk is zipped onto Γ and the loose piece dropped while it is below
+    MAX_FLOATING of the area before zipping (π·0.07² is 6.8 % of it with the disk cut at R − τ; π·0.12² is
+    17.6 %, kept for boundary_error to show).
+    Without a zipped piece (Γ far from both) nothing is dropped."""
+    assert MAX_FLOATING == 0.1
+    radius, tube = 0.3, 0.04
+    gamma = circle(radius, n=128)[::-1]
+    disk_v, disk_f = revolve(np.stack([np.linspace(0, radius, 16), np.zeros(16)], 1))
+    cap_v, cap_f = revolve(np.stack([np.linspace(0, cap_radius, 8), np.full(8, -0.1)], 1))
+    verts, faces = merge((disk_v, disk_f[:, ::-1]), (cap_v, cap_f[:, ::-1]))
+    v, f = cut_tube(verts, faces, [gamma], tube)
+    assert len(border_loops(f)) == 2
+    new_v, new_f, zipped = close_onto_loops(v, f, [gamma], 0.01, tube)
+    mesh = trimesh.Trimesh(new_v, new_f, process=True)
+    mesh.remove_unreferenced_vertices()
+    assert zipped == 1
+    assert (mesh.vertices[:, 2].min() > -1e-9) == dropped
+    assert len(mesh.split(only_watertight=False)) == (1 if dropped else 2)
+    if dropped:
+        assert boundary_error(mesh, [gamma]) < 1e-9
+    far = circle(radius, center=(0.0, 0.0, 0.5), n=128)  # no border runs along it: left open, nothing dropped
+    _, kept_f, none = close_onto_loops(v, f, [far], 0.01, tube)
+    assert none == 0 and len(kept_f) == len(f)
 
 
 def test_a_strip_in_rows_is_the_same_surface_without_slivers():

@@ -10,7 +10,11 @@ outside the opening, spanning Γ, whose faces (oriented along ω like the rest) 
 consistently oriented closed surface. Its border therefore runs along Γ the other way round: the part's
 own border runs against Γ's direction (ω flows against the Stokes normal of Γ's orientation, see
 ``data.targets``), the cap's along it. ``close_onto_loops`` zips the loop with that Stokes sense and drops
-the pieces whose only Γ borders were passed over, so the mesh's border is Γ and nothing else.
+the pieces whose only Γ borders were passed over, so the mesh's border is Γ and nothing else. A cap can also
+come loose: a small disk just beyond the opening, outside the tube, whose border does not run along Γ at all
+(family members with a small surface-hinge margin). Such a floating piece is joined to no loop of Γ and spans no
+part of it; once some piece is zipped, floating pieces smaller than ``MAX_FLOATING`` of the mesh are dropped
+too (a larger one is more likely a torn part of the surface, and is kept for ``boundary_error`` to show).
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ log = logging.getLogger(__name__)
 # against Γ's direction, since ω flows against the right-hand (Stokes) normal of Γ's orientation (for the
 # flat disk of ``data.targets``, f = −alpha_scale·Ω_Γ drops across the sheet along that normal).
 STOKES_WINDING = -1.0
+# Bordered pieces joined to no loop of Γ below this fraction of the mesh's area are dropped once some piece is
+# zipped (module docstring): a loose cap was 1.7 % of a hand's mesh (boundary error 0.07 while it stayed).
+MAX_FLOATING = 0.1
 
 
 def clip_by_field(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -208,7 +215,8 @@ def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.nda
     One such border is zipped whatever its direction. Among several (a cap or a second sheet beside the
     surface, see the module docstring) the one running with ``STOKES_WINDING`` is zipped (of several of
     those, the one on the largest connected piece), and a connected piece of the mesh that has a passed-over
-    border along Γ and none zipped is dropped. A Γ loop with no such border (the surface is torn near Γ),
+    border along Γ and none zipped is dropped, as is a bordered piece joined to no loop of Γ at all (below
+    ``MAX_FLOATING`` of the area, once some piece is zipped). A Γ loop with no such border (the surface is torn near Γ),
     or whose borders all run the wrong way, is left open with a warning. The faces must be oriented along
     the current. ``strip_rows``: rows of each strip (``zip_to_loop``).
 
@@ -238,13 +246,23 @@ def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.nda
                         len(loop), why)
             continue
         chosen.append((pick, _densify_loop(loop, spacing)))
+    kept_pieces = {int(vertex_piece[b[0]]) for b, _ in chosen}
+    drop: list[int] = []
     if passed_over:
-        kept_pieces = {int(vertex_piece[b[0]]) for b, _ in chosen}
         drop = sorted({int(vertex_piece[b[0]]) for b in passed_over} - kept_pieces)
         if drop:
             log.info("Dropped %d piece(s) of area %.4g (of %.4g) joined to Γ only by a passed-over border "
                      "(a cap or a second sheet).", len(drop), piece_area[drop].sum(), piece_area.sum())
-            faces = faces[~np.isin(label, drop)]
+    if chosen:
+        bordered = {int(vertex_piece[b[0]]) for b in borders}
+        floating = sorted(p for p in bordered - kept_pieces - set(drop)
+                          if piece_area[p] < MAX_FLOATING * piece_area.sum())
+        if floating:
+            log.info("Dropped %d bordered piece(s) of area %.4g (of %.4g) joined to no loop of Γ (a loose cap).",
+                     len(floating), piece_area[floating].sum(), piece_area.sum())
+            drop = drop + floating
+    if drop:
+        faces = faces[~np.isin(label, drop)]
     new_v, new_f = [vertices], [faces]
     for border, dense in chosen:
         added_v, added_f = zip_to_loop(np.concatenate(new_v), border, dense, strip_rows)
