@@ -30,12 +30,12 @@ DATA_BODIES ?= 100
 data: $(ANNY_STAMP)
 	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
 
-# the quick start: 2000 of preset=cpu's 3000 steps (README "Looking at results": under 90 s idle, with a
-# mass bound 0.836 against 0.819 and the same mesh); `make run RUN_STEPS=3000` runs the preset's whole budget
+# the quick start: 2000 of preset=cpu's 3000 steps (README "Looking at results": 82-86 s idle, with a
+# mass bound 0.839 against 0.819 and the same mesh); `make run RUN_STEPS=3000` runs the preset's whole budget
 RUN_STEPS ?= 2000
 run: setup
 	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu trainer.max_steps=$(RUN_STEPS) hydra.run.dir=$(RUN_DIR)
-	@echo "Results in $(RUN_DIR): metrics.json, mesh.ply, mesh.png, checkpoints/last.ckpt"
+	@echo "Results in $(RUN_DIR): metrics.json, mesh.ply, mesh.png, render.png, checkpoints/last.ckpt"
 
 # every test; `make test-fast` skips the ones marked slow (under a minute on 2 idle cores)
 test: setup $(ANNY_STAMP)
