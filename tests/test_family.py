@@ -298,6 +298,37 @@ def test_unaugmented_samples_are_reconstruction_samples_with_one_tree_per_mesh(f
     assert list(samples.targets) == [1]
 
 
+@pytest.mark.parametrize("augment", [False, True])
+def test_near_sampling_and_metric_band_reach_the_family_batches(family_dir, augment):
+    """``data.sampling.kind=near`` draws half of each mesh's ambient samples near it, with importance weights
+    (the metric's largest eigenvalue, w_x / q) whose uniform mean stays 1; ``data.metric_band`` makes the
+    metric Euclidean (three equal eigenvalues) beyond the band."""
+    from deepcurrents.data.targets import MeshTarget
+
+    kw = {"meshes_per_batch": 1, "num_samples": 4000, "num_surface_samples": 8, "augment": augment,
+          "boundary_weighting": False, "rotation_deg": 0.0, "shift": 0.0, "scale_range": (1.0, 1.0)}
+    near = {"kind": "near", "near_sigma": 0.02, "anchors": 256}
+    dm = FamilyDataModule(str(family_dir), sampling=near, metric_band=0.01, **kw)
+    item = dm.train_dataloader().dataset.sample_mesh(0, torch.Generator().manual_seed(2))
+    mesh = dm.meshes[0]
+    x = item["x"].double().numpy()
+    closest = MeshTarget(mesh.vertices, mesh.faces).closest(x)
+    dist = np.linalg.norm(x - closest.point, axis=1)
+    assert (dist < 0.08).mean() > 0.45  # the near half, and a few uniform samples
+    eig = torch.linalg.eigvalsh(item["metric"].double())
+    weight = eig[:, -1].numpy()
+    assert abs(weight.mean() - 1.0) < 0.1 and weight[dist < 0.005].max() < 0.05
+    euclidean = (eig[:, 0] - eig[:, -1]).abs() < 1e-6 * eig[:, -1]
+    np.testing.assert_array_equal(euclidean[dist > 0.011].numpy(), True)
+    inside = dist < 0.009  # inside the band (I − n nᵀ), but w I where the closest point lies on Γ
+    assert inside.sum() > 50
+    np.testing.assert_array_equal(euclidean[inside].numpy(), closest.on_boundary[inside])
+    with pytest.raises(ConfigError, match="metric_band"):
+        FamilyDataModule(str(family_dir), metric_band=0.0, **kw)
+    with pytest.raises(ConfigError, match="data.sampling"):
+        FamilyDataModule(str(family_dir), sampling={"kind": "nearby"}, **kw)
+
+
 def test_boundary_interpolation_is_vertexwise_and_resamples_unequal_loops():
     a, b = hopf_link(8)[0], hopf_link(8)[1]
     np.testing.assert_allclose(interpolate_loops([a], [b], 0.25)[0], 0.75 * a + 0.25 * b)

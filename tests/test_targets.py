@@ -252,3 +252,27 @@ def test_weighting_flag_changes_only_weights(weighting):
     w = torch.linalg.eigvalsh(batch["metric"].double())[:, -1]
     assert (w.mean() - 1.0).abs() < 1e-5
     assert bool((w.std() > 1e-3) == weighting)
+
+
+def test_metric_band_makes_the_metric_euclidean_away_from_the_surface():
+    # a flat square in z = 0: above its interior the paper's metric is w (I − zzᵀ) at any height; with a band
+    # of 0.05 it stays so up to height 0.05 and is w I beyond (the target current vanishes there)
+    v = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    gen = torch.Generator().manual_seed(3)
+    paper = reconstruction_sample(v, f, None, 4000, 0, gen, boundary_weighting=False, surface_loss=False)
+    gen = torch.Generator().manual_seed(3)  # the same samples
+    band = reconstruction_sample(v, f, None, 4000, 0, gen, boundary_weighting=False, surface_loss=False,
+                                 metric_band=0.05)
+    x = band["x"].double()
+    assert torch.equal(paper["x"], band["x"])
+    inside = (x[:, :2].abs() < 0.5).all(1)
+    projector = torch.eye(3, dtype=torch.float64) - torch.tensor([0, 0, 1.0]).outer(torch.tensor([0, 0, 1.0]))
+    near, far = inside & (x[:, 2].abs() < 0.049), inside & (x[:, 2].abs() > 0.051)
+    assert near.sum() > 5 and far.sum() > 500
+    torch.testing.assert_close(paper["metric"][inside].double(), projector.expand(int(inside.sum()), 3, 3))
+    torch.testing.assert_close(band["metric"][near].double(), projector.expand(int(near.sum()), 3, 3))
+    eye = torch.eye(3, dtype=torch.float64)
+    torch.testing.assert_close(band["metric"][far].double(), eye.expand(int(far.sum()), 3, 3))
+    # beyond the square's rim the closest point is on Γ: w I in both
+    torch.testing.assert_close(band["metric"][~inside], paper["metric"][~inside])

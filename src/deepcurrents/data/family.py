@@ -33,7 +33,8 @@ from torch.utils.data import DataLoader, IterableDataset
 
 from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
-from deepcurrents.data.targets import MeshTarget, mesh_boundary_loops, reconstruction_sample, target_sample
+from deepcurrents.data.recon import ambient_options, ambient_sampler
+from deepcurrents.data.targets import MeshTarget, mesh_boundary_loops, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
@@ -198,30 +199,33 @@ class FamilySamples(IterableDataset):
     def __init__(self, meshes: list[FamilyMesh], shard: Sequence[int], meshes_per_batch: int, num_samples: int,
                  num_surface_samples: int, ranges: AugmentationRanges, augment: bool = True,
                  boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0, rank: int = 0,
-                 start_step: int = 0):
+                 start_step: int = 0, metric_band: float | None = None, sampling: dict | None = None):
         self.meshes, self.shard = meshes, np.asarray(shard, dtype=np.int64)
         self.meshes_per_batch, self.num_samples = meshes_per_batch, num_samples
         self.num_surface_samples, self.ranges, self.augment = num_surface_samples, ranges, augment
         self.boundary_sigma, self.boundary_weighting = boundary_sigma, boundary_weighting
         self.seed, self.rank, self.start_step = seed, rank, start_step
-        self.targets: dict[int, MeshTarget] = {}  # unaugmented meshes' targets (AABB trees), built in each worker
+        self.metric_band, self.sampling = metric_band, ambient_options(sampling)
+        self.targets: dict[int, tuple] = {}  # unaugmented meshes' (target, ambient sampler), built in each worker
 
     def sample_mesh(self, index: int, generator: torch.Generator) -> dict:
         """One mesh, augmented and sampled."""
         mesh = self.meshes[index]
         kwargs = {"boundary_sigma": self.boundary_sigma, "boundary_weighting": self.boundary_weighting,
-                  "surface_loss": True}
-        if self.augment:  # a new mesh every step: its AABB tree is built and dropped
+                  "surface_loss": True, "metric_band": self.metric_band}
+        if self.augment:  # a new mesh every step: its AABB tree (and near sampler) is built and dropped
             v = augment_mesh(mesh.skinning, mesh.loops, generator, self.ranges)[0]
             loops = mesh.loop_points(v)
-            item = reconstruction_sample(v, mesh.faces, loops, self.num_samples, self.num_surface_samples,
-                                         generator, **kwargs)
-        else:  # the same mesh every step: its tree is built once (same samples as reconstruction_sample)
+            target = MeshTarget(v, mesh.faces, loops)
+            ambient = ambient_sampler(target, self.sampling, seed=index)
+        else:  # the same mesh every step: its tree is built once
             loops = mesh.loop_points()
             if index not in self.targets:
-                self.targets[index] = MeshTarget(mesh.vertices, mesh.faces, loops)
-            item = target_sample(self.targets[index], self.num_samples, self.num_surface_samples, generator,
-                                 **kwargs)
+                target = MeshTarget(mesh.vertices, mesh.faces, loops)
+                self.targets[index] = (target, ambient_sampler(target, self.sampling, seed=index))
+            target, ambient = self.targets[index]
+        item = target_sample(target, self.num_samples, self.num_surface_samples, generator, ambient=ambient,
+                             **kwargs)
         item["index"], item["loops"] = index, loops
         return item
 
@@ -268,6 +272,8 @@ class FamilyDataModule(L.LightningDataModule):
         num_workers: int = 0,
         seed: int = 0,
         mesh_scale_range: Sequence[float] = (1.0, 1.0),
+        metric_band: float | None = None,
+        sampling: dict | None = None,
     ):
         super().__init__()
         for key, value in (("meshes_per_batch", meshes_per_batch), ("num_samples", num_samples),
@@ -280,6 +286,8 @@ class FamilyDataModule(L.LightningDataModule):
                 raise ConfigError(f"data.{key}={list(value)} must be [low, high].")
         if not boundary_sigma > 0:
             raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
+        if metric_band is not None and not metric_band > 0:
+            raise ConfigError(f"data.metric_band={metric_band} must be positive (null: the paper's metric).")
         self.ranges = AugmentationRanges(float(rotation_deg), (float(scale_range[0]), float(scale_range[1])),
                                          float(shift), float(bound),
                                          (float(mesh_scale_range[0]), float(mesh_scale_range[1])))
@@ -291,6 +299,8 @@ class FamilyDataModule(L.LightningDataModule):
         self.num_surface_samples, self.augment = num_surface_samples, augment
         self.boundary_sigma, self.boundary_weighting = boundary_sigma, boundary_weighting
         self.num_workers, self.seed = num_workers, seed
+        self.metric_band = metric_band
+        self.sampling = ambient_options(dict(sampling) if sampling is not None else None)
 
     @property
     def num_loops(self) -> int:
@@ -323,7 +333,7 @@ class FamilyDataModule(L.LightningDataModule):
         dataset = FamilySamples(
             self.meshes, self.shard(rank, world), self.meshes_per_batch, self.num_samples,
             self.num_surface_samples, self.ranges, self.augment, self.boundary_sigma, self.boundary_weighting,
-            self.seed, rank, start,
+            self.seed, rank, start, self.metric_band, self.sampling,
         )
         return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
                           persistent_workers=self.num_workers > 0)

@@ -159,18 +159,17 @@ AMBIENT_KEYS = ("kind", "uniform_fraction", "near_sigma", "anchors", "weighted")
 
 
 def ambient_options(sampling: dict | None) -> dict:
-    """``data.sampling`` of a reconstruction, checked (one sentence naming the key). kind "uniform" (the
+    """``data.sampling`` of a reconstruction or a family, checked (one sentence naming the key). kind "uniform" (the
     paper's samples of [-1, 1]^3) or "near" (``NearTargetSampler``: ``uniform_fraction`` uniform, the rest
     Gaussian, σ = ``near_sigma``, around ``anchors`` fixed points of Σ; ``weighted``: importance weights)."""
     sampling = dict(sampling or {})
     unknown = set(sampling) - set(AMBIENT_KEYS)
     if unknown:
-        raise ConfigError(f"data.sampling has unknown keys {sorted(unknown)}; a reconstruction takes "
-                          f"{', '.join(AMBIENT_KEYS)}.")
+        raise ConfigError(f"data.sampling has unknown keys {sorted(unknown)}; it takes {', '.join(AMBIENT_KEYS)}.")
     kind = sampling.setdefault("kind", "uniform")
     if kind not in NEAR_SAMPLING_KINDS:
         raise ConfigError(f"data.sampling.kind={kind!r} must be one of {', '.join(NEAR_SAMPLING_KINDS)} for a "
-                          "reconstruction.")
+                          "reconstruction or a family.")
     if kind == "near":
         positive_int("data.sampling.anchors", sampling.setdefault("anchors", 4096))
         for key, default in (("uniform_fraction", 0.5), ("near_sigma", 0.02)):

@@ -119,7 +119,8 @@ def sample_mesh_surface(vertices: np.ndarray, faces: np.ndarray, num: int, gener
 
 def reconstruction_metric(normals: torch.Tensor, on_boundary: torch.Tensor,
                           weights: torch.Tensor) -> torch.Tensor:
-    """B_x = w_x (I − n nᵀ), and w_x I where the closest point of Σ lies on Γ (authors' code).
+    """B_x = w_x (I − n nᵀ), and w_x I where ``on_boundary`` (the closest point of Σ lies on Γ, the authors'
+    code; :func:`target_sample` also marks points beyond ``metric_band`` this way).
 
     normals (N, 3) unit; on_boundary (N,) bool; weights (N,) → (N, 3, 3).
     """
@@ -255,11 +256,14 @@ class PointCloudTarget:
 def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_surface: int,
                   generator: torch.Generator, boundary_sigma: float = 0.1, boundary_weighting: bool = True,
                   surface_loss: bool = True, domain: float = 1.0,
-                  ambient: NearTargetSampler | None = None) -> dict[str, torch.Tensor]:
+                  ambient: NearTargetSampler | None = None,
+                  metric_band: float | None = None) -> dict[str, torch.Tensor]:
     """One training batch for a target (see :func:`reconstruction_sample`). ``ambient``: where the ambient
     samples come from (None: uniform in [-domain, domain]^3, the paper's; a ``NearTargetSampler``: a
     mixture concentrated near Σ whose importance weights are folded into the metric, B_x ← w_imp B_x, so
-    the current loss keeps its expectation)."""
+    the current loss keeps its expectation). ``metric_band`` (beyond the paper; None: off): points farther
+    than this from Σ get the Euclidean metric w_x I, since the target current vanishes there; the paper's
+    w_x (I − n nᵀ) leaves ω along n free everywhere, and a small network fills that freedom with fog."""
     if ambient is None:
         x = (torch.rand(num_ambient, 3, generator=generator, dtype=torch.float64) * 2.0 - 1.0) * domain
         importance = None
@@ -273,8 +277,11 @@ def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_s
     if importance is not None:
         # w_x's mean over U stays 1 (its importance-weighted batch mean), then the importance weights
         w = (w.double() * importance * (importance.sum() / (w.double() * importance).sum())).float()
+    euclidean = near.on_boundary
+    if metric_band is not None:
+        euclidean = euclidean | (np.linalg.norm(x.numpy() - near.point, axis=1) > metric_band)
     metric = reconstruction_metric(torch.as_tensor(near.normal, dtype=torch.float32),
-                                   torch.as_tensor(near.on_boundary), w)
+                                   torch.as_tensor(euclidean), w)
     batch = {"x": x.float(), "metric": metric}
     if surface_loss and num_surface > 0:
         pts, nrm = target.sample_surface(num_surface, generator)
@@ -305,8 +312,8 @@ def closest_point_sample(target: MeshTarget | PointCloudTarget, num_ambient: int
 
 def reconstruction_sample(vertices, faces, loops: list[np.ndarray] | None, num_ambient: int,
                           num_surface: int, generator: torch.Generator, boundary_sigma: float = 0.1,
-                          boundary_weighting: bool = True,
-                          surface_loss: bool = True) -> dict[str, torch.Tensor]:
+                          boundary_weighting: bool = True, surface_loss: bool = True,
+                          metric_band: float | None = None) -> dict[str, torch.Tensor]:
     """One reconstruction batch for a mesh target, stateless (builds the AABB tree each call: for a mesh
     that changes every step; keep a :class:`MeshTarget` for a fixed one).
 
@@ -319,6 +326,7 @@ def reconstruction_sample(vertices, faces, loops: list[np.ndarray] | None, num_a
         boundary_sigma: σ of the boundary weighting (paper 0.1).
         boundary_weighting: False → w_x = 1 everywhere (ablation).
         surface_loss: False → no surface samples in the batch (ablation).
+        metric_band: None (the paper); else w_x I beyond this distance from Σ (:func:`target_sample`).
 
     Returns float32 tensors: "x" (N, 3); "metric" (N, 3, 3) = w_x (I − n nᵀ), w_x I where the closest point
     lies on Γ; and with the surface loss "surface_points" (M, 3), "surface_normals" (M, 3) unit,
@@ -326,4 +334,5 @@ def reconstruction_sample(vertices, faces, loops: list[np.ndarray] | None, num_a
     """
     target = MeshTarget(vertices, faces, loops)
     return target_sample(target, num_ambient, num_surface, generator, boundary_sigma=boundary_sigma,
-                         boundary_weighting=boundary_weighting, surface_loss=surface_loss)
+                         boundary_weighting=boundary_weighting, surface_loss=surface_loss,
+                         metric_band=metric_band)

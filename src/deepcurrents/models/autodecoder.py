@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from deepcurrents.data.family import collate_shapes
+from deepcurrents.data.recon import ambient_options, ambient_sampler
 from deepcurrents.data.targets import MeshTarget, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
@@ -194,7 +195,8 @@ class AutodecoderModule(DeepCurrentsModule):
     # ------------------------------------------------------------------------------ unseen shapes
     def fit_latent(self, vertices: np.ndarray, faces: np.ndarray, loops: Sequence[np.ndarray], steps: int = 300,
                    lr: float = 1e-2, num_samples: int = 2000, num_surface_samples: int = 2000,
-                   boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0
+                   boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0,
+                   metric_band: float | None = None, sampling: dict | None = None
                    ) -> tuple[torch.Tensor, list[float]]:
         """The autodecoder's test-time step: the latent code of a shape not trained on, by Adam on z alone
         with the training losses (current loss under B_x and surface loss on the unaugmented mesh, fresh
@@ -208,6 +210,7 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.latent_fit.lr={lr} must be positive.")
         loops = [np.asarray(lp, np.float64) for lp in loops]
         target = MeshTarget(vertices, faces, loops)
+        ambient = ambient_sampler(target, ambient_options(sampling), seed=int(seed))
         gen = torch.Generator().manual_seed(int(seed))
         weight = self.family.latents.weight
         z = weight.detach().mean(0, keepdim=True).clone().requires_grad_(True)  # (1, latent_dim)
@@ -221,7 +224,8 @@ class AutodecoderModule(DeepCurrentsModule):
             with torch.enable_grad():
                 for _ in range(steps):
                     item = target_sample(target, num_samples, num_surface_samples, gen, boundary_sigma=boundary_sigma,
-                                         boundary_weighting=boundary_weighting, surface_loss=True)
+                                         boundary_weighting=boundary_weighting, surface_loss=True,
+                                         metric_band=metric_band, ambient=ambient)
                     item["index"], item["loops"] = 0, loops
                     batch = {k: v.to(weight.device) for k, v in collate_shapes([item]).items()}
                     loss = self.compute_losses(batch, z)["loss"]
@@ -384,8 +388,10 @@ class AutodecoderModule(DeepCurrentsModule):
             learned.append((mesh, loops, f"{i}: {stem}"))
             log.info("shape %d (%s): ucd %s", i, names[i], row["ucd"])
         fit = dict(self.hparams.get("latent_fit") or {})
-        sampling = {"boundary_sigma": float(getattr(datamodule, "boundary_sigma", 0.1)),
-                    "boundary_weighting": bool(getattr(datamodule, "boundary_weighting", True))}
+        fit_kwargs = {"boundary_sigma": float(getattr(datamodule, "boundary_sigma", 0.1)),
+                      "boundary_weighting": bool(getattr(datamodule, "boundary_weighting", True)),
+                      "metric_band": getattr(datamodule, "metric_band", None),
+                      "sampling": getattr(datamodule, "sampling", None)}
         fit_seconds = 0.0
         for k, shape in enumerate(held_out):
             loops = shape.loop_points()
@@ -394,7 +400,7 @@ class AutodecoderModule(DeepCurrentsModule):
                                          lr=float(fit.get("lr", 1e-2)),
                                          num_samples=int(fit.get("num_samples", 2000)),
                                          num_surface_samples=int(fit.get("num_surface_samples", 2000)),
-                                         seed=seed + k, **sampling)
+                                         seed=seed + k, **fit_kwargs)
             fit_seconds += time.perf_counter() - start
             stem = Path(shape.name).stem
             box = np.stack([shape.vertices.min(0), shape.vertices.max(0)])
