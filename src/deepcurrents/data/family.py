@@ -14,7 +14,7 @@ So encoder b always sees "the same" loop, and two shapes' loops can be interpola
 
 Every step, each DDP rank draws ``meshes_per_batch`` meshes from its own shard of the family (mesh i
 belongs to rank i mod world_size), augments each (``data.augment``) and samples it as in reconstruction
-(``data.targets.reconstruction_sample``), all in DataLoader workers on the CPU, each with its own stream.
+(``data.targets.target_sample``), all in DataLoader workers on the CPU, each with its own stream.
 """
 
 from __future__ import annotations
@@ -252,6 +252,10 @@ class FamilyDataModule(L.LightningDataModule):
             paper; [1, 1], the default, is off; ``data.augment.AugmentationRanges``).
         boundary_sigma, boundary_weighting: the metric's boundary weighting (as reconstruction).
         num_workers: DataLoader worker processes (augmentation and sampling run there).
+        metric_band: beyond the paper (None: off): samples farther than this from the (augmented) mesh get the
+            Euclidean metric w I (``data.targets.target_sample``).
+        sampling: the ambient samples, a reconstruction's ``data.sampling`` (``data.recon.ambient_options``):
+            uniform (the paper's) or "near", importance-weighted around points of each (augmented) mesh.
     """
 
     def __init__(
