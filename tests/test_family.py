@@ -323,8 +323,9 @@ def test_near_sampling_and_metric_band_reach_the_family_batches(family_dir, augm
     inside = dist < 0.009  # inside the band (I − n nᵀ), but w I where the closest point lies on Γ
     assert inside.sum() > 50
     np.testing.assert_array_equal(euclidean[inside].numpy(), closest.on_boundary[inside])
-    with pytest.raises(ConfigError, match="metric_band"):
-        FamilyDataModule(str(family_dir), metric_band=0.0, **kw)
+    for band in (0.0, "wide"):
+        with pytest.raises(ConfigError, match="metric_band"):
+            FamilyDataModule(str(family_dir), metric_band=band, **kw)
     with pytest.raises(ConfigError, match="data.sampling"):
         FamilyDataModule(str(family_dir), sampling={"kind": "nearby"}, **kw)
 

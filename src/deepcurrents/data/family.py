@@ -290,8 +290,10 @@ class FamilyDataModule(L.LightningDataModule):
                 raise ConfigError(f"data.{key}={list(value)} must be [low, high].")
         if not boundary_sigma > 0:
             raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
-        if metric_band is not None and not metric_band > 0:
-            raise ConfigError(f"data.metric_band={metric_band} must be positive (null: the paper's metric).")
+        if metric_band is not None and (isinstance(metric_band, bool) or not isinstance(metric_band, (int, float))
+                                        or not metric_band > 0):
+            raise ConfigError(f"data.metric_band={metric_band!r} must be a positive distance (null: the paper's "
+                              "metric).")
         self.ranges = AugmentationRanges(float(rotation_deg), (float(scale_range[0]), float(scale_range[1])),
                                          float(shift), float(bound),
                                          (float(mesh_scale_range[0]), float(mesh_scale_range[1])))
@@ -304,7 +306,7 @@ class FamilyDataModule(L.LightningDataModule):
         self.boundary_sigma, self.boundary_weighting = boundary_sigma, boundary_weighting
         self.num_workers, self.seed = num_workers, seed
         self.metric_band = metric_band
-        self.sampling = ambient_options(dict(sampling) if sampling is not None else None)
+        self.sampling = ambient_options(sampling)
 
     @property
     def num_loops(self) -> int:
