@@ -5,7 +5,8 @@
 
 1. data: one batch (per mesh: augmentation with harmonic skinning + reconstruction samples), in-process —
    what each DataLoader worker does per step (so data.num_workers ≥ data time / step time keeps up);
-2. the training step (current loss + surface loss, double backward, Adam);
+2. the training step (current loss + surface loss, double backward, Adam), also with
+   ``model.net.matmul_precision=medium`` (bf16 / TF32 internals in the decoder pass's products);
 3. the decoder's first layer as implemented (code part once per shape) against the plain concatenation
    [code | RFF(x)] per point: time and peak memory of forward + double backward (CUDA: allocator peak;
    CPU: the size of the concatenated input the split avoids).
@@ -99,6 +100,9 @@ def main() -> None:
         opt.step()
 
     step_s = timed(step, device, args.repeats)
+    module.family.matmul_precision = "medium"  # bf16 / TF32 internals in the decoder pass (nn.field_gradient)
+    medium_s = timed(step, device, args.repeats)
+    module.family.matmul_precision = "highest"
 
     fam = module.family
     code = fam.code(fam.latents(batch["index"]), batch["loops"], batch["loop_mask"]).detach().requires_grad_(True)
@@ -120,7 +124,7 @@ def main() -> None:
     report = {
         "device": str(device), "machine": platform.node(), "cpu_threads": torch.get_num_threads(),
         "meshes": args.meshes, "samples_per_mesh": args.samples, "network": sizes,
-        "data_seconds_per_batch": data_s, "train_step_seconds": step_s,
+        "data_seconds_per_batch": data_s, "train_step_seconds": step_s, "train_step_seconds_medium": medium_s,
         "workers_to_keep_up": data_s / step_s,
         "first_layer": results,
         "first_layer_time_ratio_concat_over_split": results["concatenated"]["seconds"] / results["split"]["seconds"],
@@ -129,6 +133,7 @@ def main() -> None:
     print(f"{device}, {args.meshes} meshes × {args.samples} points, network {sizes}")
     print(f"  data (augment + sample) per batch   {data_s:8.3f} s   (one worker)")
     print(f"  training step                       {step_s:8.3f} s   → workers needed ≈ {data_s / step_s:.1f}")
+    print(f"  … with model.net.matmul_precision=medium {medium_s:8.3f} s   ({step_s / medium_s:.2f}× faster)")
     for name, r in results.items():
         mem = f"  peak {r['peak_bytes'] / 2**20:8.1f} MiB" if r["peak_bytes"] else ""
         print(f"  first layer {name:13s} ∇f + backward {r['seconds']:7.3f} s{mem}")

@@ -4,12 +4,15 @@ fraction of this machine's own fp32 matrix-multiply rate, measured in the same r
     python benchmarks/train_step.py [--samples 4096] [--repeats 10] [--device cpu|cuda] [--threads T]
                                     [--net paper|cpu] [--skip-memory] [--no-keep-freed-memory] [--cpu-time]
 
-Three ways of computing ω = ∇f + α and the loss's gradient, timed interleaved so that all see the same machine
+Four ways of computing ω = ∇f + α and the loss's gradient, timed interleaved so that all see the same machine
 state: ``closed_form`` (the default of NeuralCurrent: nn/field_gradient.py, one pass with a hand-written
-backward), ``features`` (autograd through the MLP, the Fourier features' Jacobian in closed form: the previous
-default) and ``autograd`` (plain double-backward autograd through sin/cos, the authors' way). ``--net cpu`` times
-the network of ``preset=cpu`` (256 frequencies, 3×128) instead. Like a training run, the process first lets
-glibc reuse freed memory (experiments.runner.keep_freed_memory; ``--no-keep-freed-memory`` to measure without).
+backward), ``medium`` (the same pass with ``model.net.matmul_precision=medium``: bf16 internals in its products on
+a CPU with AMX / AVX512-BF16, TF32 on a GPU; compared both with the IEEE fp32 GEMM rate and with the GEMM rate
+under the same internals), ``features`` (autograd through the MLP, the Fourier features' Jacobian in closed
+form: the previous default) and ``autograd`` (plain double-backward autograd through sin/cos, the authors'
+way). ``--net cpu`` times the network of ``preset=cpu`` (256 frequencies, 3×128) instead. Like a training run,
+the process first lets glibc reuse freed memory (experiments.runner.keep_freed_memory; ``--no-keep-freed-memory``
+to measure without).
 
 Also measures peak memory of the 2^20-sample mass evaluation. Prints a table and saves JSON under
 benchmarks/results/.
@@ -34,6 +37,7 @@ from deepcurrents.experiments.runner import keep_freed_memory
 from deepcurrents.geometry import trefoil
 from deepcurrents.losses import current_loss
 from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn.field_gradient import matmul_precision_scope
 
 
 def sync(device):
@@ -41,18 +45,20 @@ def sync(device):
         torch.cuda.synchronize()
 
 
-def matmul_rate(device, n=2048, repeats=10, clock=time.perf_counter) -> float:
-    """Best-of fp32 GEMM rate (FLOP/s) for an n×n×n product, the machine's practical peak."""
+def matmul_rate(device, n=2048, repeats=10, clock=time.perf_counter, reduced=False) -> float:
+    """Best-of fp32 GEMM rate (FLOP/s) for an n×n×n product, the machine's practical peak; ``reduced``: with
+    the bf16 / TF32 internals of ``model.net.matmul_precision=medium`` (nn.field_gradient)."""
     a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
-    for _ in range(2):
-        a @ b
-    sync(device)
-    best = float("inf")
-    for _ in range(repeats):
-        t = clock()
-        a @ b
+    with matmul_precision_scope(device.type, reduced):
+        for _ in range(2):
+            a @ b
         sync(device)
-        best = min(best, clock() - t)
+        best = float("inf")
+        for _ in range(repeats):
+            t = clock()
+            a @ b
+            sync(device)
+            best = min(best, clock() - t)
     return 2 * n**3 / best
 
 
@@ -85,7 +91,7 @@ def autograd_omega(model, x):
 
 
 NETS = {"paper": {}, "cpu": {"num_frequencies": 256, "width": 128, "depth": 3}}
-VARIANTS = ("closed_form", "features", "autograd")
+VARIANTS = ("closed_form", "medium", "features", "autograd")
 
 
 def make_step(model, opt, samples, device, variant="closed_form"):
@@ -94,7 +100,8 @@ def make_step(model, opt, samples, device, variant="closed_form"):
         if variant == "autograd":
             omega = autograd_omega(model, x)
         else:
-            model.gradient = "closed_form" if variant == "closed_form" else "autograd"
+            model.gradient = "autograd" if variant == "features" else "closed_form"
+            model.matmul_precision = "medium" if variant == "medium" else "highest"
             omega = model(x, create_graph=True)[1]
         loss = current_loss(omega)
         opt.zero_grad(set_to_none=True)
@@ -133,10 +140,11 @@ def main():
         step()
     # interleave the variants and GEMM-rate timings so that all see the same machine state
     times: dict[str, list[float]] = {v: [] for v in steps}
-    rates = []
+    rates, reduced_rates = [], []
     load_before = os.getloadavg()[0]
     for _ in range(args.repeats):
         rates.append(matmul_rate(device, repeats=3, clock=clock))
+        reduced_rates.append(matmul_rate(device, repeats=3, clock=clock, reduced=True))
         for name, step in steps.items():
             sync(device)
             t = clock()
@@ -156,11 +164,16 @@ def main():
         "gemm_rate_gflops_median": rate / 1e9, "gemm_rate_gflops_best": max(rates) / 1e9,
         "fraction_of_gemm_rate": flops["closed_form"] / median["closed_form"] / rate,
     }
+    reduced_rate = statistics.median(reduced_rates)
+    result.update({"reduced_gemm_rate_gflops_median": reduced_rate / 1e9,
+                   "medium_fraction_of_reduced_gemm_rate": flops["medium"] / median["medium"] / reduced_rate})
     for v in VARIANTS[1:]:
-        result.update({f"{v}_step_ms_median": 1e3 * median[v], f"{v}_step_gflop": flops[v] / 1e9,
-                       f"speedup_vs_{v}": median[v] / median["closed_form"],
+        # medium is a faster variant of the default, the others slower ones: each ratio is the faster one's speed-up
+        speedup = ({"medium_speedup": median["closed_form"] / median[v]} if v == "medium"
+                   else {f"speedup_vs_{v}": median[v] / median["closed_form"]})
+        result.update({f"{v}_step_ms_median": 1e3 * median[v], f"{v}_step_gflop": flops[v] / 1e9, **speedup,
                        f"{v}_fraction_of_gemm_rate": flops[v] / median[v] / rate})
-    model.gradient = "closed_form"
+    model.gradient, model.matmul_precision = "closed_form", "highest"
     if not args.skip_memory:
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats()

@@ -182,6 +182,33 @@ def test_second_order_gradients_reach_codes_and_encoders():
     assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in fam.encoders.parameters())
 
 
+def test_medium_matmul_precision_reaches_the_decoder_pass():
+    """model.net.matmul_precision=medium in a family: the decoder's training pass (float32) gives the codes and
+    weights the gradients of IEEE products up to bf16 rounding where the hardware has it; evaluation is exact."""
+    from deepcurrents.nn.field_gradient import reduced_precision_available
+
+    torch.manual_seed(0)  # large enough that oneDNN takes the products (it leaves tiny ones to other kernels)
+    fam = FamilyCurrent(num_shapes=3, num_loops=1, latent_dim=4, boundary_dim=5, num_frequencies=64, width=64,
+                        depth=2, zero_init_output=False)
+    loops = [[torch.tensor(hopf_link(10)[0]).float()]] * 2
+    padded, mask = pad_loops(loops)
+    x = torch.rand(2, 256, 3) * 2 - 1
+    grads, evaluated = {}, {}
+    for precision in ("highest", "medium"):
+        fam.matmul_precision = precision
+        code = fam.code(fam.latents(torch.tensor([0, 2])), padded, mask)
+        _, omega = fam(x, code, padded, mask, create_graph=True)
+        wrt = [fam.latents.weight, *fam.mlp.parameters()]
+        grads[precision] = torch.cat([g.flatten() for g in torch.autograd.grad(
+            omega.norm(dim=-1).mean(), wrt, allow_unused=True) if g is not None])
+        evaluated[precision] = fam(x, code.detach(), padded, mask, create_graph=False)
+    difference = float((grads["medium"] - grads["highest"]).norm() / grads["highest"].norm())
+    assert (0.0 < difference < 0.05) if reduced_precision_available("cpu") else difference == 0.0
+    torch.testing.assert_close(evaluated["medium"], evaluated["highest"], rtol=0, atol=0)
+    with pytest.raises(ConfigError, match="matmul_precision"):
+        FamilyCurrent(num_shapes=1, num_loops=1, matmul_precision="fp16")
+
+
 def test_conditioned_current_is_one_member_of_the_batch():
     fam = small_family()
     loop = torch.tensor(hopf_link(10)[0])

@@ -161,7 +161,8 @@ def test_hand_written_pass_with_grid_features_passes_gradcheck():
     params = [torch.randn(*s, generator=gen, dtype=torch.float64).requires_grad_(True) for s in shapes]
 
     def run(extra, extra_jac, *params):
-        return _FieldGradient.apply(x, encoding.frequencies, ("softplus", 1.0, 20.0), True, extra, extra_jac, *params)
+        return _FieldGradient.apply(x, encoding.frequencies, ("softplus", 1.0, 20.0), True, False, extra,
+                                    extra_jac, *params)
 
     assert torch.autograd.gradcheck(run, (extra, extra_jac, *params), eps=1e-6, atol=1e-8, rtol=1e-6)
 

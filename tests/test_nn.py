@@ -219,7 +219,8 @@ def test_hand_written_gradient_network_passes_gradcheck():
     params = tuple(p.detach().clone().requires_grad_(True) for p in model.mlp.parameters())
 
     def run(*params):
-        return _FieldGradient.apply(x, model.encoding.frequencies, ("softplus", 1.0, 20.0), True, None, None, *params)
+        return _FieldGradient.apply(x, model.encoding.frequencies, ("softplus", 1.0, 20.0), True, False, None, None,
+                                    *params)
 
     assert torch.autograd.gradcheck(run, params, eps=1e-6, atol=1e-8, rtol=1e-6)
 
@@ -238,6 +239,41 @@ def test_hand_written_gradient_network_is_the_default_and_detaches_for_evaluatio
     model.gradient = "autograd"
     f3, omega3 = model(x, create_graph=False)
     torch.testing.assert_close(omega, omega3, rtol=1e-5, atol=1e-6)  # float32: equal up to rounding
+
+
+def test_medium_matmul_precision_trains_nearly_alike_and_evaluates_exactly():
+    """model.net.matmul_precision=medium: the training pass's products get bf16 (CPU) internals where the
+    hardware has them, so the loss's parameter gradients differ from IEEE fp32's by rounding only; evaluation
+    passes and α are untouched, and the backend's setting is restored after the pass."""
+    from deepcurrents.nn.field_gradient import reduced_precision_available
+
+    torch.manual_seed(6)
+    model = paper_current(num_frequencies=64, width=64, depth=3)
+    x = torch.rand(512, 3) * 2 - 1
+    before = torch.backends.mkldnn.matmul.fp32_precision
+
+    def loss_grads(precision):
+        model.matmul_precision = precision
+        _, omega = model(x, create_graph=True)
+        grads = torch.autograd.grad(current_loss(omega), list(model.mlp.parameters()), allow_unused=True)
+        return torch.cat([g.flatten() for g in grads if g is not None])  # the output's constant: no gradient
+
+    exact, medium = loss_grads("highest"), loss_grads("medium")
+    assert torch.backends.mkldnn.matmul.fp32_precision == before  # restored after the forward and the backward
+    difference = float((medium - exact).norm() / exact.norm())
+    if reduced_precision_available("cpu"):
+        assert 0.0 < difference < 0.05  # bf16 rounding (2^-9) inside fp32 products, not another computation
+    else:
+        assert difference == 0.0  # no bf16 hardware: the IEEE products
+    for precision in ("highest", "medium"):  # evaluation: IEEE fp32 whatever the setting
+        model.matmul_precision = precision
+        f, omega = model(x, create_graph=False)
+        if precision == "highest":
+            reference = (f, omega)
+        else:
+            torch.testing.assert_close((f, omega), reference, rtol=0, atol=0)
+    with pytest.raises(ConfigError, match=r"model\.net\.matmul_precision='low' must be one of highest, medium"):
+        paper_current(num_frequencies=4, width=4, depth=1, matmul_precision="low")
 
 
 @pytest.mark.parametrize("activation", ["softplus", "relu"])

@@ -9,7 +9,7 @@ from torch import nn
 
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import biot_savart, biot_savart_2d
-from deepcurrents.nn.field_gradient import closed_form_supported, field_and_gradient
+from deepcurrents.nn.field_gradient import check_matmul_precision, closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.grid_encoding import MultiresGrid
 from deepcurrents.nn.mlp import FieldMLP
@@ -33,6 +33,8 @@ class NeuralCurrent(nn.Module):
     ``grid``: keyword arguments of ``MultiresGrid`` (levels, base_resolution, finest_resolution, features,
     table_size, init_scale) for learned grid features beside the Fourier features (not in the paper); None: off.
     ``coarse_to_fine``, ``coarse_start``: the Fourier frequencies open during training (``FourierFeatures``).
+    ``matmul_precision``: "highest" (IEEE fp32 products) or "medium" (bf16 / TF32 internals in the training
+    pass's products where the hardware has them; ``nn.field_gradient``); evaluation is fp32 either way.
     """
 
     gradient: str = "closed_form"
@@ -55,12 +57,14 @@ class NeuralCurrent(nn.Module):
         grid: dict | None = None,
         coarse_to_fine: float = 0.0,
         coarse_start: float = 0.25,
+        matmul_precision: str = "highest",
     ):
         super().__init__()
         if dim not in (2, 3):
             raise ConfigError(f"model.dim={dim} must be 2 or 3.")
         self.dim = dim
         self.alpha_scale = alpha_scale
+        self.matmul_precision = check_matmul_precision(matmul_precision)
         self.encoding = FourierFeatures(dim, num_frequencies, sigma, enabled=rff, seed=rff_seed,
                                         coarse_to_fine=coarse_to_fine, coarse_start=coarse_start)
         self.grid = MultiresGrid(dim, seed=rff_seed, **grid) if grid else None
@@ -115,7 +119,8 @@ class NeuralCurrent(nn.Module):
         extra_dim = self.grid.out_dim if self.grid is not None else 0
         if self.gradient == "closed_form" and closed_form_supported(self.mlp, self.encoding, extra_dim=extra_dim):
             with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
-                f, grad_f = field_and_gradient(self.mlp, self.encoding, x, grid=self.grid)
+                f, grad_f = field_and_gradient(self.mlp, self.encoding, x, grid=self.grid,
+                                               matmul_precision=self.matmul_precision)
             return f, grad_f + (self.alpha(x) if alpha is None else self.alpha_scale * alpha)
         with torch.enable_grad():
             # autograd to the MLP's input features, then each encoding's closed-form Jacobian (Fourier: 2πB cos/sin;

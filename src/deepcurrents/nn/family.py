@@ -20,7 +20,7 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import biot_savart
 from deepcurrents.nn.current import NeuralCurrent, spatial_gradient
 from deepcurrents.nn.encoder import BoundaryEncoder
-from deepcurrents.nn.field_gradient import closed_form_supported, field_and_gradient
+from deepcurrents.nn.field_gradient import check_matmul_precision, closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
 
@@ -55,7 +55,7 @@ class FamilyCurrent(nn.Module):
         num_loops: boundary loops B per shape (the same for the whole family).
         latent_dim, boundary_dim: sizes of z and of each z_Γb (paper: 256, 256).
         num_frequencies, sigma, rff, width, depth, activation, alpha_scale, rff_seed, coarse_to_fine,
-            coarse_start: as ``NeuralCurrent``.
+            coarse_start, matmul_precision: as ``NeuralCurrent``.
         latent_std: standard deviation of the initial codes (paper: 0.1).
         zero_init_output: zero the decoder's last layer (f ≡ const at the start; False: PyTorch's default).
     """
@@ -78,6 +78,7 @@ class FamilyCurrent(nn.Module):
         zero_init_output: bool = True,
         coarse_to_fine: float = 0.0,
         coarse_start: float = 0.25,
+        matmul_precision: str = "highest",
     ):
         super().__init__()
         for key, value in (("num_shapes", num_shapes), ("num_loops", num_loops), ("latent_dim", latent_dim),
@@ -85,6 +86,7 @@ class FamilyCurrent(nn.Module):
             if int(value) <= 0:
                 raise ConfigError(f"model.{key}={value} must be a positive integer.")
         self.num_loops, self.alpha_scale = int(num_loops), float(alpha_scale)
+        self.matmul_precision = check_matmul_precision(matmul_precision)
         self.latents = nn.Embedding(int(num_shapes), int(latent_dim))
         nn.init.normal_(self.latents.weight, mean=0.0, std=float(latent_std))
         self.encoders = nn.ModuleList(BoundaryEncoder(int(boundary_dim)) for _ in range(self.num_loops))
@@ -133,7 +135,8 @@ class FamilyCurrent(nn.Module):
             with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
                 first, c = self.mlp.net[0], self.code_dim
                 bias = F.linear(code, first.weight[:, :c], first.bias)  # the code's part, once per shape (decode)
-                f, grad_f = field_and_gradient(self.mlp, self.encoding, x, first_layer=(first.weight[:, c:], bias))
+                f, grad_f = field_and_gradient(self.mlp, self.encoding, x, first_layer=(first.weight[:, c:], bias),
+                                               matmul_precision=self.matmul_precision)
             with torch.no_grad():
                 alpha = self.alpha(x, unpad_loops(loops, mask))
             return f, grad_f + alpha
