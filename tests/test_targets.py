@@ -121,6 +121,26 @@ def test_closest_points_normals_and_metric_match_brute_force():
     np.testing.assert_allclose(batch["metric"].numpy()[ok], expected[ok], atol=1e-5)
 
 
+def test_a_moved_target_is_the_target_of_the_moved_mesh():
+    """MeshTarget.moved (an augmented copy, the family's per-step mesh) reuses the border of the faces and answers
+    closest points, normals and "on Γ" as a target built from scratch on the moved vertices does."""
+    v, f = bumpy_patch(seed=2)
+    base = MeshTarget(v, f)
+    rng = np.random.default_rng(3)
+    moved_v = 1.3 * v + 0.05 * rng.standard_normal(v.shape)  # scaled and jittered: the same faces
+    loops = mesh_boundary_loops(moved_v, f)
+    moved, fresh = base.moved(moved_v, loops), MeshTarget(moved_v, f, loops)
+    x = rng.uniform(-1, 1, (400, 3))
+    a, b = moved.closest(x), fresh.closest(x)
+    np.testing.assert_array_equal(a.point, b.point)
+    np.testing.assert_array_equal(a.normal, b.normal)
+    np.testing.assert_array_equal(a.on_boundary, b.on_boundary)
+    assert 20 < a.on_boundary.sum() < len(x) - 20
+    np.testing.assert_array_equal(moved.vertex_normals, fresh.vertex_normals)
+    assert moved.area == fresh.area and moved.area > base.area
+    np.testing.assert_array_equal(moved.loops[0], loops[0])
+
+
 def test_metric_on_and_off_the_boundary_of_a_flat_patch():
     v = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]], float)
     f = np.array([[0, 1, 2], [0, 2, 3]])

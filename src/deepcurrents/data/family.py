@@ -207,6 +207,7 @@ class FamilySamples(IterableDataset):
         self.seed, self.rank, self.start_step = seed, rank, start_step
         self.metric_band, self.sampling = metric_band, ambient_options(sampling)
         self.targets: dict[int, tuple] = {}  # unaugmented meshes' (target, ambient sampler), built in each worker
+        self.topology: dict[int, MeshTarget] = {}  # unaugmented meshes whose border augmented copies reuse
 
     def sample_mesh(self, index: int, generator: torch.Generator) -> dict:
         """One mesh, augmented and sampled."""
@@ -216,7 +217,9 @@ class FamilySamples(IterableDataset):
         if self.augment:  # a new mesh every step: its AABB tree (and near sampler) is built and dropped
             v = augment_mesh(mesh.skinning, mesh.loops, generator, self.ranges)[0]
             loops = mesh.loop_points(v)
-            target = MeshTarget(v, mesh.faces, loops)
+            if index not in self.topology:  # the faces' border, once per mesh and worker (MeshTarget.moved)
+                self.topology[index] = MeshTarget(mesh.vertices, mesh.faces, mesh.loop_points())
+            target = self.topology[index].moved(v, loops)
             ambient = ambient_sampler(target, self.sampling, seed=index)
         else:  # the same mesh every step: its tree is built once
             loops = mesh.loop_points()

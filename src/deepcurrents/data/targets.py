@@ -180,7 +180,10 @@ class MeshTarget:
     boundary vertex (barycentric test), so it does not depend on the loops' sampling.
     """
 
-    def __init__(self, vertices, faces, loops: list[np.ndarray] | None = None):
+    def __init__(self, vertices, faces, loops: list[np.ndarray] | None = None,
+                 topology: tuple[np.ndarray, np.ndarray] | None = None):
+        """``topology``: (edge_on_boundary (F, 3), vertex_on_boundary (V,)) of these faces if already known
+        (``moved``); they depend on the faces alone, and finding the border edges was 40 % of building a target."""
         self.vertices = _as_numpy(vertices, np.float64)
         self.faces = _as_numpy(faces, np.int64)
         self.loops = [np.asarray(lp, np.float64) for lp in loops] if loops is not None else \
@@ -190,15 +193,23 @@ class MeshTarget:
         self.face_normals = face_normals(self.vertices, self.faces)
         self.vertex_normals = igl.per_vertex_normals(self.vertices, self.faces)
         self.areas = 0.5 * igl.doublearea(self.vertices, self.faces)
-        # edge k of a face is the one opposite its vertex k
-        edges = border_edges(self.faces)
-        f = self.faces
-        opposite = np.stack([f[:, [1, 2]], f[:, [2, 0]], f[:, [0, 1]]], 1)  # (F, 3, 2)
-        nv = len(self.vertices)
-        self.edge_on_boundary = np.isin(_edge_code(np.sort(opposite.reshape(-1, 2), 1), nv),
-                                        _edge_code(np.sort(edges, 1), nv)).reshape(-1, 3)
-        self.vertex_on_boundary = np.zeros(len(self.vertices), bool)
-        self.vertex_on_boundary[edges.reshape(-1)] = True
+        if topology is None:
+            # edge k of a face is the one opposite its vertex k
+            edges = border_edges(self.faces)
+            f = self.faces
+            opposite = np.stack([f[:, [1, 2]], f[:, [2, 0]], f[:, [0, 1]]], 1)  # (F, 3, 2)
+            nv = len(self.vertices)
+            edge_on_boundary = np.isin(_edge_code(np.sort(opposite.reshape(-1, 2), 1), nv),
+                                       _edge_code(np.sort(edges, 1), nv)).reshape(-1, 3)
+            vertex_on_boundary = np.zeros(len(self.vertices), bool)
+            vertex_on_boundary[edges.reshape(-1)] = True
+            topology = (edge_on_boundary, vertex_on_boundary)
+        self.edge_on_boundary, self.vertex_on_boundary = topology
+
+    def moved(self, vertices, loops: list[np.ndarray]) -> MeshTarget:
+        """The same faces with other vertex positions (an augmented copy of this mesh, (V, 3)) and its loops:
+        tree, normals and areas are rebuilt, the border (which depends on the faces alone) is reused."""
+        return MeshTarget(vertices, self.faces, loops, topology=(self.edge_on_boundary, self.vertex_on_boundary))
 
     @property
     def area(self) -> float:
