@@ -11,7 +11,7 @@ import torch
 from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, compose_cfg, written_curve_length
 
 from deepcurrents.errors import UserInputError
-from deepcurrents.experiments.runner import build, train
+from deepcurrents.experiments.runner import build, train, training_threads
 
 TINY = [*QUIET_CPU, *TINY_NET, *TINY_EVAL, "trainer.max_steps=6", "callbacks.model_checkpoint.every_n_train_steps=3"]
 
@@ -68,6 +68,8 @@ def bad_obj(tmp_path):
         (["model.rff.num_frequencies=0"], r"model\.rff\.num_frequencies"),
         (["+model.rff.frequencies=8"], "unknown keys"),
         (["model.net.activation=tanhh"], "activation"),
+        (["torch_threads=many"], "torch_threads"),
+        (["model.net.matmul_precision=low"], r"model\.net\.matmul_precision"),
         (["ckpt_path=/nonexistent.ckpt"], "ckpt_path"),
     ],
 )
@@ -77,6 +79,36 @@ def test_bad_input_stops_before_training_with_one_sentence(tmp_path, overrides, 
         train(cfg, out_dir=tmp_path)
     assert "\n" not in str(info.value)
     assert not (tmp_path / "checkpoints").exists()
+
+
+def test_training_threads_leave_the_loader_workers_their_cores(monkeypatch):
+    """torch_threads=auto on a CPU: each training process gets (cores // processes) − loader workers threads when
+    that is fewer than torch's own choice; an integer is taken as given; null, or a run with cores to spare,
+    keeps torch's choice. The families' CPU preset asks for auto; the other presets keep torch's choice."""
+    import lightning as L
+
+    import deepcurrents.experiments.runner as runner
+
+    monkeypatch.setattr(runner, "available_cores", lambda: 2)
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 2)
+    one, two = (L.Trainer(accelerator="cpu", devices=n, logger=False, enable_progress_bar=False) for n in (1, 2))
+
+    def threads(trainer, **cfg):
+        return training_threads(compose_cfg([f"{k}={v}" for k, v in cfg.items()]), trainer)
+
+    assert threads(one, torch_threads="auto", **{"data.num_workers": 1}) == 1
+    assert threads(one, torch_threads="auto", **{"data.num_workers": 0}) is None  # 2 cores: torch's 2 already
+    assert threads(two, torch_threads="auto", **{"data.num_workers": 0}) == 1  # two DDP processes on 2 cores
+    assert threads(one, torch_threads=3) == 3
+    assert threads(one, torch_threads="null", **{"data.num_workers": 1}) is None
+    assert compose_cfg(["experiment=latent_hands", "preset=cpu"]).torch_threads == "auto"
+    assert compose_cfg(["experiment=latent_heads", "preset=cpu"]).torch_threads is None
+    assert compose_cfg(["experiment=recon_hand", "preset=cpu"]).torch_threads is None
+    monkeypatch.undo()  # the real setting: changed for the block, torch's choice again after it
+    real = torch.get_num_threads()
+    with runner.torch_threads(1):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == real
 
 
 @pytest.mark.slow

@@ -75,6 +75,9 @@ def validate_config(cfg: DictConfig) -> None:
     if max_steps == -1 and seconds is None:
         raise ConfigError("trainer.max_steps=-1 (no step limit) needs a time budget: set trainer.max_time "
                           "(seconds or DD:HH:MM:SS).")
+    threads = OmegaConf.select(cfg, "torch_threads")
+    if threads not in (None, "auto"):
+        _positive_int(cfg, "torch_threads")
     _positive_int(cfg, "data.num_samples")
     _positive_int(cfg, "evaluation.mass_samples")
     _positive_int(cfg, "evaluation.mesh.resolution", 8)

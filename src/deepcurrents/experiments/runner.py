@@ -20,16 +20,19 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
+import os
 import sys
 import time
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
 import hydra
 import lightning as L
+import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
+from lightning.pytorch.accelerators import CPUAccelerator
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from omegaconf import DictConfig, OmegaConf
 
@@ -123,6 +126,44 @@ def build_trainer(cfg: DictConfig, **kwargs) -> L.Trainer:
                           "anywhere).") from None
 
 
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where the platform has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS, Windows
+        return os.cpu_count() or 1
+
+
+def training_threads(cfg: DictConfig, trainer: L.Trainer) -> int | None:
+    """Torch threads of each training process (``torch_threads``): an integer as given; ``auto`` on a CPU run,
+    the cores left to each process beside its loader workers, (cores // processes on this node) − data.num_workers,
+    at least 1, when that is fewer than torch's own choice (which counts every core, so trainer and workers,
+    or several DDP processes, fight over them); null or a GPU run: None, torch's choice."""
+    value = cfg.get("torch_threads")
+    if value is None:
+        return None
+    if value != "auto":
+        return positive_int("torch_threads", value)
+    if not isinstance(trainer.accelerator, CPUAccelerator):
+        return None
+    workers = int(cfg.get("data", {}).get("num_workers", 0) or 0)
+    threads = max(1, available_cores() // max(1, trainer.num_devices) - workers)
+    return threads if threads < torch.get_num_threads() else None
+
+
+@contextmanager
+def torch_threads(threads: int | None):
+    """``torch.set_num_threads(threads)`` for the block (None: unchanged), then torch's previous setting: the
+    final evaluation after training has the cores to itself again."""
+    before = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def build(cfg: DictConfig):
     """The DataModule and the LightningModule of a run (validates the inputs; trains nothing)."""
     datamodule = instantiate(cfg.data, _convert_="all")
@@ -172,8 +213,13 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
         default_root_dir=str(out_dir),
         **trainer_overrides(cfg),  # max_time in seconds → timedelta
     )
+    threads = training_threads(cfg, trainer)
+    if threads is not None:
+        log.info("Training with %d torch thread(s) beside %s loader worker(s) (torch_threads).", threads,
+                 cfg.data.get("num_workers", 0))
     try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
-        trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
+        with torch_threads(threads):
+            trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
     except SIGTERMException:
         log.warning("Stopped by a signal (SIGTERM/SIGUSR1) at step %d; %s holds it. Continue with ckpt_path=auto "
                     "hydra.run.dir=%s.", trainer.global_step, last, out_dir)
