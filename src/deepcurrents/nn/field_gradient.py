@@ -77,8 +77,8 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     backward hands the features and their Jacobian their gradients, which autograd carries on to the grid's table.
 
     ``matmul_precision="medium"``: when a backward follows (training), the pass's matrix products, forward and
-    backward, run with bf16 (CPU, oneDNN) or TF32 (CUDA) internals where the hardware has them: 1.8× faster a
-    paper-network step on a CPU with AMX, parameter gradients within 0.3 % (benchmarks/README). Evaluation
+    backward, run with bf16 (CPU, oneDNN) or TF32 (CUDA) internals where the hardware has them: a paper-network step
+    1.6–1.7× faster on a CPU with AMX, parameter gradients within 0.3 % at the start (benchmarks/README). Evaluation
     passes (no backward) stay IEEE fp32 whatever this says.
     """
     if grid is not None and first_layer is not None:
@@ -184,7 +184,7 @@ class _FieldGradient(torch.autograd.Function):
     """(x, B or None, spec, keep, fast, e or None, J_e or None, W_1, b_1, …, W_L, b_L, w_o, b_o) ↦ (f (N,), ∇f (N, d));
     see the module doc. ``keep``: a backward will follow (training), so keep what it needs. b_1 may be (S, W):
     one bias per group of N / S consecutive rows (a conditioned decoder). ``fast``: the matrix products with
-    reduced-precision internals (``_matmul_precision``), forward and backward. e (N, G) are extra features after
+    reduced-precision internals (``matmul_precision_scope``), forward and backward. e (N, G) are extra features after
     the Fourier features (or after x), J_e (N, G, d) their x-Jacobian."""
 
     @staticmethod
