@@ -244,7 +244,7 @@ def test_hand_written_gradient_network_is_the_default_and_detaches_for_evaluatio
 def test_medium_matmul_precision_trains_nearly_alike_and_evaluates_exactly():
     """model.net.matmul_precision=medium: the training pass's products get bf16 (CPU) internals where the
     hardware has them, so the loss's parameter gradients differ from IEEE fp32's by rounding only; evaluation
-    passes and α are untouched, and the backend's setting is restored after the pass."""
+    passes are untouched, and the backend's setting is restored after the pass (so α's products stay IEEE)."""
     from deepcurrents.nn.field_gradient import reduced_precision_available
 
     torch.manual_seed(6)

@@ -34,6 +34,7 @@ from torch.utils.data import DataLoader, IterableDataset
 from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
 from deepcurrents.data.recon import ambient_options, ambient_sampler
+from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.data.targets import MeshTarget, mesh_boundary_loops, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
@@ -207,7 +208,14 @@ class FamilySamples(IterableDataset):
         self.seed, self.rank, self.start_step = seed, rank, start_step
         self.metric_band, self.sampling = metric_band, ambient_options(sampling)
         self.targets: dict[int, tuple] = {}  # unaugmented meshes' (target, ambient sampler), built in each worker
-        self.topology: dict[int, MeshTarget] = {}  # unaugmented meshes whose border augmented copies reuse
+
+    def unaugmented(self, index: int) -> tuple[MeshTarget, NearTargetSampler | None]:
+        """Mesh ``index`` as stored: its target (AABB tree, border) and ambient sampler, built once per worker."""
+        if index not in self.targets:
+            mesh = self.meshes[index]
+            target = MeshTarget(mesh.vertices, mesh.faces, mesh.loop_points())
+            self.targets[index] = (target, ambient_sampler(target, self.sampling, seed=index))
+        return self.targets[index]
 
     def sample_mesh(self, index: int, generator: torch.Generator) -> dict:
         """One mesh, augmented and sampled."""
@@ -217,16 +225,11 @@ class FamilySamples(IterableDataset):
         if self.augment:  # a new mesh every step: its AABB tree (and near sampler) is built and dropped
             v = augment_mesh(mesh.skinning, mesh.loops, generator, self.ranges)[0]
             loops = mesh.loop_points(v)
-            if index not in self.topology:  # the faces' border, once per mesh and worker (MeshTarget.moved)
-                self.topology[index] = MeshTarget(mesh.vertices, mesh.faces, mesh.loop_points())
-            target = self.topology[index].moved(v, loops)
+            target = self.unaugmented(index)[0].moved(v, loops)  # the faces' border reused (MeshTarget.moved)
             ambient = ambient_sampler(target, self.sampling, seed=index)
         else:  # the same mesh every step: its tree is built once
             loops = mesh.loop_points()
-            if index not in self.targets:
-                target = MeshTarget(mesh.vertices, mesh.faces, loops)
-                self.targets[index] = (target, ambient_sampler(target, self.sampling, seed=index))
-            target, ambient = self.targets[index]
+            target, ambient = self.unaugmented(index)
         item = target_sample(target, self.num_samples, self.num_surface_samples, generator, ambient=ambient,
                              **kwargs)
         item["index"], item["loops"] = index, loops
