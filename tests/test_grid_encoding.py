@@ -162,7 +162,7 @@ def test_hand_written_pass_with_grid_features_passes_gradcheck():
 
     def run(extra, extra_jac, *params):
         return _FieldGradient.apply(x, encoding.frequencies, ("softplus", 1.0, 20.0), True, False, extra,
-                                    extra_jac, *params)
+                                    extra_jac, None, *params)
 
     assert torch.autograd.gradcheck(run, (extra, extra_jac, *params), eps=1e-6, atol=1e-8, rtol=1e-6)
 

@@ -220,7 +220,7 @@ def test_hand_written_gradient_network_passes_gradcheck():
 
     def run(*params):
         return _FieldGradient.apply(x, model.encoding.frequencies, ("softplus", 1.0, 20.0), True, False, None, None,
-                                    *params)
+                                    None, *params)
 
     assert torch.autograd.gradcheck(run, params, eps=1e-6, atol=1e-8, rtol=1e-6)
 
@@ -387,3 +387,105 @@ def test_coarse_to_fine_closed_form_matches_autograd(coarse_to_fine):
     ref = torch.autograd.grad(current_loss(grad_ref), params, allow_unused=True)
     for a, b in zip(ours, ref, strict=True):
         assert _relative_error(a, b) <= 1e-10
+
+
+# --- phase harmonics (model.net.phase_harmonics) ----------------------------------------------------------------
+
+
+def harmonic_current(K=3, **kw):
+    kw.setdefault("num_frequencies", 8)
+    kw.setdefault("width", 16)
+    kw.setdefault("depth", 2)
+    return paper_current(phase_harmonics=K, **kw).double()
+
+
+def test_phase_harmonics_gradient_is_the_gradient_of_f():
+    """ω − α is ∇f, f = h·e(Ω/2) with the solid angle inside the basis: central differences of f itself."""
+    torch.manual_seed(1)
+    model = harmonic_current()
+    x = torch.rand(40, 3, dtype=torch.float64) * 1.6 - 0.8
+    _, omega = model(x, create_graph=False)
+    eps = 1e-6
+    fd = torch.stack([(model.f(x + eps * e) - model.f(x - eps * e)) / (2 * eps)
+                      for e in torch.eye(3, dtype=torch.float64)], 1)
+    grad_f = omega - model.alpha(x)
+    assert fd.abs().max() > 0.1  # the harmonics' part (h·∂e/∂u)∇u is large next to Γ: not a trivial check
+    assert (grad_f - fd).abs().max() < 1e-7
+
+
+def test_phase_harmonics_f_is_continuous_across_the_solid_angles_branch_cut():
+    """Ω jumps by 4π across its fan of triangles (centroid, v_i, v_i+1); f depends on u = Ω/2 only through
+    integer harmonics, so it does not jump there."""
+    from deepcurrents.geometry.biot_savart import solid_angle
+
+    torch.manual_seed(2)
+    model = harmonic_current()
+    (loop,) = model.loops
+    c = loop.mean(0)
+    i = 7
+    v0, v1 = loop[i], loop[i + 1]
+    p = c + 0.3 * (v0 - c) + 0.3 * (v1 - c)  # inside fan triangle i
+    n = torch.linalg.cross(v0 - c, v1 - c)
+    n = n / n.norm()
+    pts = torch.stack([p + 1e-9 * n, p - 1e-9 * n])
+    jump = solid_angle(pts, model.loops)
+    assert abs(abs(float(jump[0] - jump[1])) - 4 * math.pi) < 1e-6
+    with torch.no_grad():
+        f = model.f(pts)
+    assert abs(float(f[0] - f[1])) < 1e-9
+
+
+def test_phase_harmonics_closed_form_pass_matches_autograd():
+    """The hand-written pass with an output basis against autograd: f, ω and every parameter gradient."""
+    torch.manual_seed(3)
+    model = harmonic_current(K=4)
+    x = torch.rand(30, 3, dtype=torch.float64) * 2 - 1
+    weights = torch.linspace(-1, 1, 30, dtype=torch.float64)
+
+    def run(gradient):
+        model.gradient = gradient
+        f, omega = model(x, create_graph=True)
+        loss = current_loss(omega) + (weights * f).mean()
+        return f, omega, torch.autograd.grad(loss, list(model.mlp.parameters()))
+
+    f, omega, ours = run("closed_form")
+    f_ref, omega_ref, ref = run("autograd")
+    assert _relative_error(f, f_ref) <= 1e-12 and _relative_error(omega, omega_ref) <= 1e-12
+    for a, b in zip(ours, ref, strict=True):
+        assert _relative_error(a, b) <= 1e-10
+
+
+def test_phase_harmonics_reach_the_disk_with_constant_outputs():
+    """The circle's minimal current is ω = 4π·a·n·δ_disk, f = −2a·saw(u) (u = Ω/2 ≡ π on the disk). Its truncated,
+    Fejér-weighted series is constant outputs of the MLP (the output bias): its mass bound lands near the disk's
+    area πR², while f ≡ const (ω = α, K = 0) is more than twice that. Mass by 2^16 uniform samples of [-1, 1]^3."""
+    R, a = 0.5, 1e-3
+    loops = [torch.tensor(circle(R, n=100))]
+    gen = torch.Generator().manual_seed(5)
+    x = torch.rand(1 << 16, 3, generator=gen, dtype=torch.float64) * 2 - 1
+
+    def bound(K):
+        model = NeuralCurrent(3, loops=loops, num_frequencies=4, width=4, depth=1, phase_harmonics=K).double()
+        with torch.no_grad():
+            model.mlp.net[-1].bias.zero_()
+            for k in range(1, K + 1):  # saw(t) = 2 Σ (−1)^{k+1} sin(kt)/k, Fejér factors 1 − k/(K + 1)
+                model.mlp.net[-1].bias[K + k] = 4.0 * (-1) ** k * (1 - k / (K + 1))
+        norms = model(x, create_graph=False)[1].norm(dim=1)
+        to_area = 8.0 / (4 * math.pi * a)
+        return float(norms.mean()) * to_area, float(norms.std()) / math.sqrt(norms.numel()) * to_area
+
+    disk = math.pi * R * R
+    plain, _ = bound(0)
+    sawtooth, err = bound(8)
+    assert plain > 2.0 * disk
+    assert disk - 4 * err < sawtooth < 1.2 * disk
+
+
+def test_phase_harmonics_refuses_bad_values_in_one_sentence():
+    with pytest.raises(ConfigError, match="model.net.phase_harmonics"):
+        paper_current(phase_harmonics=-1)
+    with pytest.raises(ConfigError, match="model.net.phase_harmonics"):
+        paper_current(phase_harmonics=2.5)
+    with pytest.raises(ConfigError, match="3D boundary"):
+        NeuralCurrent(2, poles=torch.tensor([[0.0, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+                      phase_harmonics=4)

@@ -164,6 +164,31 @@ def test_datamodule_streams_differ_per_rank_and_resume_step():
     assert datamodule.boundary.length() == pytest.approx(closed_length, rel=1e-5)
 
 
+def test_delayed_phase_harmonics_follow_the_budget_and_travel_in_checkpoints(tmp_path):
+    """model.net.phase_harmonics_start: the harmonics' gate is 0 until that fraction of the budget, then opens over
+    the next 0.2; the checkpoint carries it, so it evaluates (and resumes) with the gate it trained under. The run
+    goes through the final evaluation (mass, phase mesh, sharpened bound) with harmonics in f."""
+    from deepcurrents.models.loading import load_module
+
+    cfg = compose_cfg(["experiment=minimal_trefoil", *TINY, "model.net.phase_harmonics=2",
+                       "model.net.phase_harmonics_start=0.7"])
+    metrics = train(cfg, out_dir=tmp_path / "run")
+    assert metrics["mass_area"] > 0
+    state = torch.load(tmp_path / "run/checkpoints/last.ckpt", weights_only=True)["state_dict"]
+    current = load_module(tmp_path / "run/checkpoints/last.ckpt").current
+    assert current.mlp.net[-1].out_features == 5
+    # the last step (global step 5 of 6) trained under the gate at 5/6 of the budget: (5/6 − 0.7) / 0.2
+    assert float(state["current.harmonic_gate"]) == pytest.approx((5 / 6 - 0.7) / 0.2)
+    assert float(current.harmonic_gate) == pytest.approx((5 / 6 - 0.7) / 0.2)
+    current.set_progress(0.5)
+    assert float(current.harmonic_gate) == 0.0
+    current.set_progress(0.95)
+    assert float(current.harmonic_gate) == 1.0
+    with pytest.raises(UserInputError, match=r"model.net.phase_harmonics_start=1.5 must be a fraction"):
+        build(compose_cfg(["experiment=minimal_trefoil", *TINY, "model.net.phase_harmonics=2",
+                           "model.net.phase_harmonics_start=1.5"]))
+
+
 def test_coarse_to_fine_features_follow_the_budget_and_travel_in_checkpoints(tmp_path):
     """model.rff.coarse_to_fine: each step's weights are set from the budget used (step / max_steps here); the
     checkpoint carries them, so a checkpoint evaluates (and resumes) with the weights it trained under."""

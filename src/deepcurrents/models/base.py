@@ -19,7 +19,6 @@ from deepcurrents.errors import ConfigError, NonFiniteLossError, positive_int
 from deepcurrents.eval.metrics import mesh_summary
 from deepcurrents.eval.plots import MeshView, plot_mesh
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
-from deepcurrents.nn.fourier import FourierFeatures
 
 CHECKPOINT_KEY = "deepcurrents"
 
@@ -134,13 +133,14 @@ class DeepCurrentsModule(L.LightningModule):
 
     def on_train_start(self) -> None:
         self._train_start = time.perf_counter()
-        self._coarse_to_fine = [m for m in self.modules() if isinstance(m, FourierFeatures) and m.weights is not None]
+        # modules that change with the budget used: coarse-to-fine Fourier features, delayed phase harmonics
+        self._follow_progress = [m for m in self.modules() if getattr(m, "follows_progress", False)]
 
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
-        # coarse-to-fine Fourier features open with the budget used (steps or seconds), as the cosine lr does;
-        # (recomputed from the restored step and clock, so a resumed run sets the weights the uninterrupted one had)
-        for encoding in getattr(self, "_coarse_to_fine", ()):
-            encoding.set_progress(trainer_progress(self.trainer, self.global_step))
+        # they follow the budget used (steps or seconds), as the cosine lr does (recomputed from the restored
+        # step and clock, so a resumed run sets the values the uninterrupted one had)
+        for module in getattr(self, "_follow_progress", ()):
+            module.set_progress(trainer_progress(self.trainer, self.global_step))
 
     def on_train_end(self) -> None:
         self.train_seconds = self.elapsed_train_seconds()

@@ -43,15 +43,16 @@ from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
 
 
-def closed_form_supported(mlp: nn.Module, encoding: nn.Module, code_dim: int = 0, extra_dim: int = 0) -> bool:
+def closed_form_supported(mlp: nn.Module, encoding: nn.Module, code_dim: int = 0, extra_dim: int = 0,
+                          out_dim: int = 1) -> bool:
     """Whether ``field_and_gradient`` can run ``mlp`` on ``encoding``: a ``FieldMLP`` (Linear/activation pairs,
-    Softplus or ReLU, then a Linear with one output) on ``FourierFeatures`` (enabled or the identity), after
-    ``code_dim`` code inputs (a conditioned decoder, ``first_layer``) and before ``extra_dim`` features of
+    Softplus or ReLU, then a Linear with ``out_dim`` outputs) on ``FourierFeatures`` (enabled or the identity),
+    after ``code_dim`` code inputs (a conditioned decoder, ``first_layer``) and before ``extra_dim`` features of
     another encoding (``grid``)."""
     if not isinstance(mlp, FieldMLP) or not isinstance(encoding, FourierFeatures):
         return False
     layers = list(mlp.net)
-    if len(layers) < 3 or len(layers) % 2 == 0 or layers[-1].out_features != 1:
+    if len(layers) < 3 or len(layers) % 2 == 0 or layers[-1].out_features != out_dim:
         return False
     if layers[0].in_features != code_dim + encoding.out_dim + extra_dim:
         return False
@@ -61,8 +62,8 @@ def closed_form_supported(mlp: nn.Module, encoding: nn.Module, code_dim: int = 0
 
 def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor,
                        first_layer: tuple[torch.Tensor, torch.Tensor] | None = None,
-                       grid: nn.Module | None = None, matmul_precision: str = "highest"
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
+                       grid: nn.Module | None = None, matmul_precision: str = "highest",
+                       output_basis: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """f = mlp(encoding(x)) and ∇_x f, differentiable in the MLP's parameters (not in x).
 
     x: (N, d) → (f (N,), ∇f (N, d)). The same numbers as autograd (tests/test_nn.py: float64, relative
@@ -80,6 +81,11 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     backward, run with bf16 (CPU, oneDNN) or TF32 (CUDA) internals where the hardware has them: a paper-network step
     1.6–1.7× faster on a CPU with AMX, parameter gradients within 0.3 % at the start (benchmarks/README). Evaluation
     passes (no backward) stay IEEE fp32 whatever this says.
+
+    ``output_basis`` e (…, M), for an MLP with M outputs h: returns h (…, M) and Σ_m e_m ∇h_m (…, d), the
+    gradient of f = Σ_m e_m h_m with e held fixed (``NeuralCurrent``'s phase harmonics, whose basis depends on
+    x through the solid angle: the caller adds that part). The reverse sweep then starts from the per-sample
+    row e W_o instead of the output weights, at no extra matrix product; e gets no gradient.
     """
     if grid is not None and first_layer is not None:
         raise ValueError("field_and_gradient: grid features are not supported with a conditioned first layer.")
@@ -111,7 +117,10 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     # saved activations with the weights and need one dtype; the mass loss is sensitive to rounding anyway
     with torch.autocast(points.device.type, enabled=False):
         fast = keep and check_matmul_precision(matmul_precision) == "medium"
-        f, grad = _FieldGradient.apply(points, freqs, spec, keep, fast, extra, extra_jac, *params)
+        basis = None if output_basis is None else output_basis.detach().reshape(points.shape[0], -1)
+        f, grad = _FieldGradient.apply(points, freqs, spec, keep, fast, extra, extra_jac, basis, *params)
+    if basis is not None:
+        return f.reshape(*x.shape[:-1], basis.shape[1]), grad.reshape(x.shape)
     return f.reshape(x.shape[:-1]), grad.reshape(x.shape)
 
 
@@ -181,20 +190,21 @@ def _signed_frequencies(freqs: torch.Tensor) -> torch.Tensor:
 
 
 class _FieldGradient(torch.autograd.Function):
-    """(x, B or None, spec, keep, fast, e or None, J_e or None, W_1, b_1, …, W_L, b_L, w_o, b_o) ↦ (f (N,), ∇f (N, d));
+    """(x, B or None, spec, keep, fast, e or None, J_e or None, E or None, W_1, b_1, …, W_L, b_L, w_o, b_o) ↦
+    (f (N,), ∇f (N, d)), or (h (N, M), Σ_m E_m ∇h_m) with an output basis E (N, M) for M outputs;
     see the module doc. ``keep``: a backward will follow (training), so keep what it needs. b_1 may be (S, W):
     one bias per group of N / S consecutive rows (a conditioned decoder). ``fast``: the matrix products with
     reduced-precision internals (``matmul_precision_scope``), forward and backward. e (N, G) are extra features after
     the Fourier features (or after x), J_e (N, G, d) their x-Jacobian."""
 
     @staticmethod
-    def forward(ctx, x, freqs, spec, keep, fast, extra, extra_jac, *params):
+    def forward(ctx, x, freqs, spec, keep, fast, extra, extra_jac, basis, *params):
         ctx.fast, ctx.device_type = fast, x.device.type
         with matmul_precision_scope(x.device.type, fast):
-            return _FieldGradient._forward(ctx, x, freqs, spec, keep, extra, extra_jac, *params)
+            return _FieldGradient._forward(ctx, x, freqs, spec, keep, extra, extra_jac, basis, *params)
 
     @staticmethod
-    def _forward(ctx, x, freqs, spec, keep, extra, extra_jac, *params):
+    def _forward(ctx, x, freqs, spec, keep, extra, extra_jac, basis, *params):
         weights, biases = params[0::2], params[1::2]
         depth = len(weights) - 1
         width = 0 if extra is None else extra.shape[1]
@@ -223,10 +233,13 @@ class _FieldGradient(torch.autograd.Function):
             a = _activation(z, spec)
             del z
         inputs.append(a)
-        f = torch.addmm(biases[-1], a, weights[-1].T).squeeze(-1)
+        f = torch.addmm(biases[-1], a, weights[-1].T)
+        if basis is None:
+            f = f.squeeze(-1)
         # the reverse sweep: δ_l = g_l ⊙ s_l, g_{l-1} = δ_l W_l
         deltas, curvatures = [None] * depth, [None] * depth
-        g = weights[-1]  # g_L = w_o, (1, W), broadcast over the rows
+        # g_L = w_o, (1, W), broadcast over the rows; with a basis, Σ_m E_m w_o,m per row, (N, W)
+        g = weights[-1] if basis is None else basis @ weights[-1]
         for layer in reversed(range(depth)):
             s = derivs[layer]
             deltas[layer] = g * s
@@ -252,9 +265,9 @@ class _FieldGradient(torch.autograd.Function):
             grad = grad + extra_grad
         del g
         if keep:
-            ctx.depth, ctx.rff, ctx.extra = depth, freqs is not None, extra is not None
+            ctx.depth, ctx.rff, ctx.extra, ctx.basis = depth, freqs is not None, extra is not None, basis is not None
             ctx.base = base
-            ctx.save_for_backward(*([freqs] if freqs is not None else []),
+            ctx.save_for_backward(*([freqs] if freqs is not None else []), *([basis] if basis is not None else []),
                                   *((extra_jac, g_extra) if extra is not None else ()), *params, *inputs,
                                   *derivs, *deltas, *(c for c in curvatures if c is not None))
         ctx.set_materialize_grads(False)
@@ -271,6 +284,7 @@ class _FieldGradient(torch.autograd.Function):
         depth = ctx.depth
         saved = list(ctx.saved_tensors)
         freqs = saved.pop(0) if ctx.rff else None
+        basis = saved.pop(0) if ctx.basis else None
         extra_jac, g_extra = (saved.pop(0), saved.pop(0)) if ctx.extra else (None, None)
         base = ctx.base
         params, saved = saved[:2 * depth + 2], saved[2 * depth + 2:]
@@ -302,15 +316,20 @@ class _FieldGradient(torch.autograd.Function):
                 g_bar = delta_bar * derivs[layer]
                 if curvatures:
                     z_bar[layer] = delta_bar.mul_(curvatures[layer])
-            w_bar[depth] = g_bar.sum(0, keepdim=True)
+            # g_L = w_o (or E W_o): its adjoint ḡ_L lands on the output weights
+            w_bar[depth] = g_bar.sum(0, keepdim=True) if basis is None else basis.T @ g_bar
         # the forward sweep's adjoint, from the output down
         a_bar = None
         b_out_bar = None
         if f_bar is not None:
-            a_bar = f_bar[:, None] * weights[-1]
-            w_out = f_bar[None] @ inputs[depth]
+            if basis is None:
+                a_bar = f_bar[:, None] * weights[-1]
+                w_out = f_bar[None] @ inputs[depth]
+            else:  # h̄ (N, M)
+                a_bar = f_bar @ weights[-1]
+                w_out = f_bar.T @ inputs[depth]
             w_bar[depth] = w_out if w_bar[depth] is None else w_bar[depth].add_(w_out)
-            b_out_bar = f_bar.sum(0, keepdim=True)
+            b_out_bar = f_bar.sum(0, keepdim=True) if basis is None else f_bar.sum(0)
         b_bar: list[torch.Tensor | None] = [None] * depth
         for layer in reversed(range(depth)):
             zb = z_bar[layer]
@@ -331,4 +350,4 @@ class _FieldGradient(torch.autograd.Function):
         for layer in range(depth):
             grads += [w_bar[layer], b_bar[layer]]
         grads += [w_bar[depth], b_out_bar]
-        return (None, None, None, None, None, extra_bar, jac_bar, *grads)
+        return (None, None, None, None, None, extra_bar, jac_bar, None, *grads)

@@ -45,6 +45,11 @@ class FourierFeatures(nn.Module):
         else:
             self.weights = None
 
+    @property
+    def follows_progress(self) -> bool:
+        """Whether training must call ``set_progress`` (coarse-to-fine frequencies)."""
+        return self.weights is not None
+
     def set_progress(self, progress: float) -> None:
         """w at the fraction ``progress`` ∈ [0, 1] of the training budget (no-op without coarse_to_fine)."""
         if self.weights is None:
