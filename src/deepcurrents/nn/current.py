@@ -149,6 +149,10 @@ class NeuralCurrent(nn.Module):
         u = Ω_Γ(x)/2 (∇u = α_Γ/2). (N, 3) → 2 × (N, 2K + 1), no gradient (e enters f = Σ_m h_m e_m as data; its
         x-derivative is added through α)."""
         with torch.no_grad():
+            if float(self.harmonic_gate) == 0.0:  # not open yet: f = h_0, and no solid angle to compute
+                basis = x.new_zeros(x.shape[0], 1 + 2 * self.phase_harmonics)
+                basis[:, 0] = 1.0
+                return basis, torch.zeros_like(basis)
             u = 0.5 * solid_angle(x.detach(), self.loops)
             k = torch.arange(1, self.phase_harmonics + 1, dtype=x.dtype, device=x.device)
             ku = u[:, None] * k
@@ -186,7 +190,7 @@ class NeuralCurrent(nn.Module):
         # the hand-written pass: the MLP on the Fourier features and, if any, the grid features after them
         extra_dim = self.grid.out_dim if self.grid is not None else 0
         if self.gradient == "closed_form" and closed_form_supported(self.mlp, self.encoding, extra_dim=extra_dim,
-                                                                    out_dim=self.mlp.net[-1].out_features):
+                                                                    out_dim=1 + 2 * self.phase_harmonics):
             with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
                 f, grad_f = field_and_gradient(self.mlp, self.encoding, x, grid=self.grid,
                                                matmul_precision=self.matmul_precision, output_basis=basis)
