@@ -158,26 +158,30 @@ class TargetSamples(IterableDataset):
 AMBIENT_KEYS = ("kind", "uniform_fraction", "near_sigma", "anchors", "weighted")
 
 
-def ambient_options(sampling: dict | None) -> dict:
+def ambient_options(sampling: dict | None, key: str = "data.sampling", anchors: bool = True) -> dict:
     """``data.sampling`` of a reconstruction or a family, checked (one sentence naming the key). kind "uniform" (the
     paper's samples of [-1, 1]^3) or "near" (``NearTargetSampler``: ``uniform_fraction`` uniform, the rest
-    Gaussian, σ = ``near_sigma``, around ``anchors`` fixed points of Σ; ``weighted``: importance weights)."""
+    Gaussian, σ = ``near_sigma``, around ``anchors`` fixed points of Σ; ``weighted``: importance weights).
+    ``key`` names the node in messages; ``anchors=False``: a sampler whose anchors come from elsewhere (the
+    interpolation regulariser's: the batch's surface samples), so the key is refused."""
     sampling = dict(sampling or {})
-    unknown = set(sampling) - set(AMBIENT_KEYS)
+    allowed = AMBIENT_KEYS if anchors else tuple(k for k in AMBIENT_KEYS if k != "anchors")
+    unknown = set(sampling) - set(allowed)
     if unknown:
-        raise ConfigError(f"data.sampling has unknown keys {sorted(unknown)}; it takes {', '.join(AMBIENT_KEYS)}.")
+        raise ConfigError(f"{key} has unknown keys {sorted(unknown)}; it takes {', '.join(allowed)}.")
     kind = sampling.setdefault("kind", "uniform")
     if kind not in NEAR_SAMPLING_KINDS:
-        raise ConfigError(f"data.sampling.kind={kind!r} must be one of {', '.join(NEAR_SAMPLING_KINDS)} for a "
+        raise ConfigError(f"{key}.kind={kind!r} must be one of {', '.join(NEAR_SAMPLING_KINDS)} for a "
                           "reconstruction or a family.")
     if kind == "near":
-        positive_int("data.sampling.anchors", sampling.setdefault("anchors", 4096))
-        for key, default in (("uniform_fraction", 0.5), ("near_sigma", 0.02)):
-            value = sampling.setdefault(key, default)
+        if anchors:
+            positive_int(f"{key}.anchors", sampling.setdefault("anchors", 4096))
+        for name, default in (("uniform_fraction", 0.5), ("near_sigma", 0.02)):
+            value = sampling.setdefault(name, default)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ConfigError(f"data.sampling.{key}={value!r} must be a positive number.")
+                raise ConfigError(f"{key}.{name}={value!r} must be a positive number.")
         if not sampling["uniform_fraction"] <= 1:
-            raise ConfigError(f"data.sampling.uniform_fraction={sampling['uniform_fraction']} must be in (0, 1].")
+            raise ConfigError(f"{key}.uniform_fraction={sampling['uniform_fraction']} must be in (0, 1].")
         sampling["weighted"] = bool(sampling.get("weighted", True))
     return sampling
 

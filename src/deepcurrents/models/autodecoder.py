@@ -24,6 +24,7 @@ import torch
 
 from deepcurrents.data.family import collate_shapes
 from deepcurrents.data.recon import ambient_options, ambient_sampler
+from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.data.targets import MeshTarget, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
@@ -69,6 +70,11 @@ class AutodecoderModule(DeepCurrentsModule):
         interpolation_mix: how a pair's code and boundary are blended: "shared" (one t ~ U[0, 1] for both, the
             diagonal of an interpolation grid) or "independent" (t_z, t_Γ ~ U[0, 1] apart, so the code of one
             shape with the boundary of another, the grid's off-diagonal members, is regularised too).
+        interpolation_sampling: where that mass loss takes its points: {"kind": "uniform"} (U, the default) or
+            {"kind": "near", "near_sigma": σ, "uniform_fraction": u}: a share u uniform in U and the rest from
+            Gaussians of σ around the batch's surface samples of the pair's two shapes, with the importance
+            weights 1/q that keep the loss an unbiased estimate of the mass (``data.sampling.NearTargetSampler``).
+            A hand fills ~0.1 % of U, so uniform points almost never fall where an interpolant's fog lies.
         latent_fit: {"steps", "lr", "num_samples", "num_surface_samples"} of ``fit_latent`` for the shapes held
             out of training (``data.held_out``).
         evaluation: the run's `evaluation` node: {"mesh": extract_surface kwargs (its "padding" sizes the meshed
@@ -97,6 +103,7 @@ class AutodecoderModule(DeepCurrentsModule):
         mass_weight: float = 0.0,
         interpolation_weight: float = 0.0,
         interpolation_mix: str = "shared",
+        interpolation_sampling: dict | None = None,
         latent_fit: dict | None = None,
         evaluation: dict | None = None,
         loop_lengths: Sequence[Sequence[int]] | None = None,
@@ -120,6 +127,8 @@ class AutodecoderModule(DeepCurrentsModule):
         if interpolation_mix not in INTERPOLATION_MIXES:
             raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
                               f"{', '.join(INTERPOLATION_MIXES)}.")
+        self.interpolation_sampling = ambient_options(interpolation_sampling, "model.interpolation_sampling",
+                                                      anchors=False)
         self.save_hyperparameters(ignore=["train_loops", "train_bounds"])
         self.evaluation = dict(evaluation or {})
         self.family = FamilyCurrent(num_shapes, num_loops, latent_dim, boundary_dim, latent_std=latent_std,
@@ -260,23 +269,26 @@ class AutodecoderModule(DeepCurrentsModule):
                                                    self.hparams.surface_margin)
             loss = loss + self.hparams.surface_weight * losses["surface_loss"]
         if self.hparams.interpolation_weight > 0 and self.training:
-            interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1])
+            interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1],
+                                                    batch.get("surface_points"))
             if interpolation is not None:
                 losses["interpolation_loss"] = interpolation
                 loss = loss + self.hparams.interpolation_weight * interpolation
         losses["loss"] = loss
         return losses
 
-    def interpolation_loss(self, z: torch.Tensor, loops: torch.Tensor, mask: torch.Tensor,
-                           num_points: int) -> torch.Tensor | None:
-        """E_x |ω_t(x)| (B = I, x ~ U([-1, 1]^3)) of interpolants between each shape of the batch and the
-        next one (a cyclic shift; batches come in random order, so every pair turns up): z_t = (1 − t) z_i + t z_j,
+    def interpolation_loss(self, z: torch.Tensor, loops: torch.Tensor, mask: torch.Tensor, num_points: int,
+                           surface_points: torch.Tensor | None = None) -> torch.Tensor | None:
+        """E_x |ω_t(x)| (B = I) of interpolants between each shape of the batch and the next one (a cyclic
+        shift; batches come in random order, so every pair turns up): z_t = (1 − t) z_i + t z_j,
         Γ_s = (1 − s) Γ_i + s Γ_j vertex by vertex, with s = t ~ U[0, 1] per pair (``interpolation_mix`` =
         "shared") or s, t ~ U[0, 1] drawn apart ("independent": the code of one shape with the boundary of
         another, as off the diagonal of an interpolation grid). Pairs whose loops differ in vertex counts are
-        skipped (None if none is left).
+        skipped (None if none is left). x ~ U([-1, 1]^3), or (``interpolation_sampling.kind`` = "near") the
+        importance-weighted mixture of U and Gaussians around ``surface_points`` of shapes i and j, whose
+        weighted mean is the same expectation.
 
-        z (S, latent_dim), loops (S, B, L, 3), mask (S, B, L) → scalar."""
+        z (S, latent_dim), loops (S, B, L, 3), mask (S, B, L), surface_points (S, M, 3) → scalar."""
         other = torch.roll(torch.arange(len(z), device=z.device), -1)
         same = (mask == mask[other]).flatten(1).all(1) & (other != torch.arange(len(z), device=z.device))
         if not bool(same.any()):
@@ -288,9 +300,33 @@ class AutodecoderModule(DeepCurrentsModule):
         z_t = (1 - t) * z[i] + t * z[j]
         loops_t = (1 - s[:, :, None, None]) * loops[i] + s[:, :, None, None] * loops[j]
         code = self.family.code(z_t, loops_t, mask[i])
-        x = torch.rand(len(i), num_points, 3, device=z.device, dtype=loops.dtype) * 2 - 1
+        x, weight = self.interpolation_points(i, j, num_points, surface_points, loops.dtype)
         _, omega = self.family(x, code, loops_t, mask[i], create_graph=True)
-        return current_loss(omega.flatten(0, 1))
+        return current_loss(omega.flatten(0, 1), weight=None if weight is None else weight.flatten())
+
+    def interpolation_points(self, i: torch.Tensor, j: torch.Tensor, num_points: int,
+                             surface_points: torch.Tensor | None,
+                             dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The interpolation regulariser's points for pairs (i, j) and their importance weights (None: uniform).
+
+        → x (P, num_points, 3), weight (P, num_points) or None."""
+        device = i.device
+        sampling = self.interpolation_sampling
+        if sampling["kind"] == "uniform" or surface_points is None:
+            return torch.rand(len(i), num_points, 3, device=device, dtype=dtype) * 2 - 1, None
+        # NearTargetSampler per pair (numpy, on the CPU: a few thousand anchors), its stream seeded from torch's
+        # so that runs stay reproducible under the run's seed
+        anchors = torch.cat([surface_points[i], surface_points[j]], 1).detach().double().cpu().numpy()
+        xs, weights = [], []
+        for pair in anchors:
+            sampler = NearTargetSampler(pair, float(sampling["near_sigma"]), float(sampling["uniform_fraction"]),
+                                        weighted=bool(sampling["weighted"]))
+            generator = torch.Generator().manual_seed(int(torch.randint(2**62, (1,))))
+            x, w = sampler.sample(num_points, generator)
+            xs.append(x)
+            weights.append(w)
+        return (torch.stack(xs).to(device=device, dtype=dtype),
+                torch.stack(weights).to(device=device, dtype=dtype))
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         losses = self.compute_losses(batch)
