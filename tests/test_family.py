@@ -307,6 +307,20 @@ def test_datamodule_batches_and_model_kwargs(family_dir):
     assert dm.shard(1, 2).tolist() == [1] and dm.shard(0, 2).tolist() == [0, 2]
 
 
+def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):
+    """data.surface_epsilon=ε: the surface loss's offsets ε ~ U[0.995 ε, 1.005 ε] (the paper's 0.02 gives its
+    U[0.0199, 0.0201]); they reach the held-out latent fit through the same key."""
+    for eps in (0.02, 0.005):
+        dm = FamilyDataModule(str(family_dir), meshes_per_batch=2, num_samples=16, num_surface_samples=400,
+                              surface_epsilon=eps)
+        offsets = next(iter(dm.train_dataloader()))["epsilon"]
+        assert float(offsets.min()) >= 0.995 * eps * (1 - 1e-6) and float(offsets.max()) <= 1.005 * eps * (1 + 1e-6)
+        assert float(offsets.max() - offsets.min()) > 0.009 * eps  # spread over (nearly) the whole interval
+    for bad in (0.0, -0.01, 1.5, True, "0.01"):
+        with pytest.raises(ConfigError, match=r"data.surface_epsilon=.* must be a distance in \(0, 1\)"):
+            FamilyDataModule(str(family_dir), surface_epsilon=bad)
+
+
 def test_unaugmented_samples_are_reconstruction_samples_with_one_tree_per_mesh(family_dir):
     """Without augmentation each mesh's AABB tree is built once per worker; the batches are the ones
     ``reconstruction_sample`` (a new tree every call) draws from the same stream."""

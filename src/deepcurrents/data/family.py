@@ -35,7 +35,7 @@ from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
 from deepcurrents.data.recon import ambient_options, ambient_sampler
 from deepcurrents.data.sampling import NearTargetSampler
-from deepcurrents.data.targets import MeshTarget, mesh_boundary_loops, target_sample
+from deepcurrents.data.targets import SURFACE_EPSILON, MeshTarget, mesh_boundary_loops, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
@@ -200,13 +200,15 @@ class FamilySamples(IterableDataset):
     def __init__(self, meshes: list[FamilyMesh], shard: Sequence[int], meshes_per_batch: int, num_samples: int,
                  num_surface_samples: int, ranges: AugmentationRanges, augment: bool = True,
                  boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0, rank: int = 0,
-                 start_step: int = 0, metric_band: float | None = None, sampling: dict | None = None):
+                 start_step: int = 0, metric_band: float | None = None, sampling: dict | None = None,
+                 surface_epsilon: float = SURFACE_EPSILON):
         self.meshes, self.shard = meshes, np.asarray(shard, dtype=np.int64)
         self.meshes_per_batch, self.num_samples = meshes_per_batch, num_samples
         self.num_surface_samples, self.ranges, self.augment = num_surface_samples, ranges, augment
         self.boundary_sigma, self.boundary_weighting = boundary_sigma, boundary_weighting
         self.seed, self.rank, self.start_step = seed, rank, start_step
         self.metric_band, self.sampling = metric_band, ambient_options(sampling)
+        self.surface_epsilon = surface_epsilon
         self.targets: dict[int, tuple] = {}  # unaugmented meshes' (target, ambient sampler), built in each worker
 
     def unaugmented(self, index: int) -> tuple[MeshTarget, NearTargetSampler | None]:
@@ -221,7 +223,7 @@ class FamilySamples(IterableDataset):
         """One mesh, augmented and sampled."""
         mesh = self.meshes[index]
         kwargs = {"boundary_sigma": self.boundary_sigma, "boundary_weighting": self.boundary_weighting,
-                  "surface_loss": True, "metric_band": self.metric_band}
+                  "surface_loss": True, "metric_band": self.metric_band, "surface_epsilon": self.surface_epsilon}
         if self.augment:  # a new mesh every step: its AABB tree (and near sampler) is built and dropped
             v = augment_mesh(mesh.skinning, mesh.loops, generator, self.ranges)[0]
             loops = mesh.loop_points(v)
@@ -262,6 +264,8 @@ class FamilyDataModule(L.LightningDataModule):
             Euclidean metric w I (``data.targets.target_sample``).
         sampling: the ambient samples, a reconstruction's ``data.sampling`` (``data.recon.ambient_options``):
             uniform (the paper's) or "near", importance-weighted around points of each (augmented) mesh.
+        surface_epsilon: ε of the surface loss's offsets y ± εn (the paper's 0.02, sized for a part that fills
+            the box; ``make data`` hands span a quarter to two fifths of it).
     """
 
     def __init__(
@@ -284,6 +288,7 @@ class FamilyDataModule(L.LightningDataModule):
         mesh_scale_range: Sequence[float] = (1.0, 1.0),
         metric_band: float | None = None,
         sampling: dict | None = None,
+        surface_epsilon: float = SURFACE_EPSILON,
     ):
         super().__init__()
         for key, value in (("meshes_per_batch", meshes_per_batch), ("num_samples", num_samples),
@@ -300,6 +305,10 @@ class FamilyDataModule(L.LightningDataModule):
                                         or not metric_band > 0):
             raise ConfigError(f"data.metric_band={metric_band!r} must be a positive distance (null: the paper's "
                               "metric).")
+        if isinstance(surface_epsilon, bool) or not isinstance(surface_epsilon, (int, float)) \
+                or not 0 < surface_epsilon < 1:
+            raise ConfigError(f"data.surface_epsilon={surface_epsilon!r} must be a distance in (0, 1) (the domain is "
+                              "[-1, 1]^3; the paper's is 0.02).")
         self.ranges = AugmentationRanges(float(rotation_deg), (float(scale_range[0]), float(scale_range[1])),
                                          float(shift), float(bound),
                                          (float(mesh_scale_range[0]), float(mesh_scale_range[1])))
@@ -313,6 +322,7 @@ class FamilyDataModule(L.LightningDataModule):
         self.num_workers, self.seed = num_workers, seed
         self.metric_band = metric_band
         self.sampling = ambient_options(sampling)
+        self.surface_epsilon = float(surface_epsilon)
 
     @property
     def num_loops(self) -> int:
@@ -345,7 +355,7 @@ class FamilyDataModule(L.LightningDataModule):
         dataset = FamilySamples(
             self.meshes, self.shard(rank, world), self.meshes_per_batch, self.num_samples,
             self.num_surface_samples, self.ranges, self.augment, self.boundary_sigma, self.boundary_weighting,
-            self.seed, rank, start, self.metric_band, self.sampling,
+            self.seed, rank, start, self.metric_band, self.sampling, self.surface_epsilon,
         )
         return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
                           persistent_workers=self.num_workers > 0)

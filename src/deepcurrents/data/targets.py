@@ -27,8 +27,9 @@ from scipy.spatial import cKDTree
 from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.geometry.topology import border_edges
 
-# the paper's surface-loss offsets ε ~ U[0.0199, 0.0201]
-EPSILON_RANGE = (0.0199, 0.0201)
+# the paper's surface-loss offsets ε ~ U[0.0199, 0.0201]: ε = 0.02 ± 0.5 %
+SURFACE_EPSILON = 0.02
+EPSILON_JITTER = 0.005
 # Barycentric tolerance for "the closest point lies on a boundary edge / vertex".
 _BARY_TOL = 1e-7
 
@@ -268,13 +269,15 @@ def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_s
                   generator: torch.Generator, boundary_sigma: float = 0.1, boundary_weighting: bool = True,
                   surface_loss: bool = True, domain: float = 1.0,
                   ambient: NearTargetSampler | None = None,
-                  metric_band: float | None = None) -> dict[str, torch.Tensor]:
+                  metric_band: float | None = None,
+                  surface_epsilon: float = SURFACE_EPSILON) -> dict[str, torch.Tensor]:
     """One training batch for a target (see :func:`reconstruction_sample`). ``ambient``: where the ambient
     samples come from (None: uniform in [-domain, domain]^3, the paper's; a ``NearTargetSampler``: a
     mixture concentrated near Σ whose importance weights are folded into the metric, B_x ← w_imp B_x, so
     the current loss keeps its expectation). ``metric_band`` (beyond the paper; None: off): points farther
     than this from Σ get the Euclidean metric w_x I, since the target current vanishes there; the paper's
-    w_x (I − n nᵀ) leaves ω along n free everywhere, and a small network fills that freedom with fog."""
+    w_x (I − n nᵀ) leaves ω along n free everywhere, and a small network fills that freedom with fog.
+    ``surface_epsilon``: the surface loss's offsets ε ~ U[(1 − 0.005) ε, (1 + 0.005) ε] (the paper's 0.02)."""
     if ambient is None:
         x = (torch.rand(num_ambient, 3, generator=generator, dtype=torch.float64) * 2.0 - 1.0) * domain
         importance = None
@@ -296,7 +299,7 @@ def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_s
     batch = {"x": x.float(), "metric": metric}
     if surface_loss and num_surface > 0:
         pts, nrm = target.sample_surface(num_surface, generator)
-        lo, hi = EPSILON_RANGE
+        lo, hi = surface_epsilon * (1.0 - EPSILON_JITTER), surface_epsilon * (1.0 + EPSILON_JITTER)
         batch["surface_points"] = torch.as_tensor(pts, dtype=torch.float32)
         batch["surface_normals"] = torch.as_tensor(nrm, dtype=torch.float32)
         eps = lo + (hi - lo) * torch.rand(num_surface, generator=generator, dtype=torch.float64)

@@ -25,7 +25,7 @@ import torch
 from deepcurrents.data.family import collate_shapes
 from deepcurrents.data.recon import ambient_options, ambient_sampler
 from deepcurrents.data.sampling import NearTargetSampler
-from deepcurrents.data.targets import MeshTarget, target_sample
+from deepcurrents.data.targets import SURFACE_EPSILON, MeshTarget, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
@@ -205,8 +205,8 @@ class AutodecoderModule(DeepCurrentsModule):
     def fit_latent(self, vertices: np.ndarray, faces: np.ndarray, loops: Sequence[np.ndarray], steps: int = 300,
                    lr: float = 1e-2, num_samples: int = 2000, num_surface_samples: int = 2000,
                    boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0,
-                   metric_band: float | None = None, sampling: dict | None = None
-                   ) -> tuple[torch.Tensor, list[float]]:
+                   metric_band: float | None = None, sampling: dict | None = None,
+                   surface_epsilon: float = SURFACE_EPSILON) -> tuple[torch.Tensor, list[float]]:
         """The autodecoder's test-time step: the latent code of a shape not trained on, by Adam on z alone
         with the training losses (current loss under B_x and surface loss on the unaugmented mesh, fresh
         samples every step); the decoder, the encoders and the training codes stay frozen. z starts at
@@ -234,7 +234,7 @@ class AutodecoderModule(DeepCurrentsModule):
                 for _ in range(steps):
                     item = target_sample(target, num_samples, num_surface_samples, gen, boundary_sigma=boundary_sigma,
                                          boundary_weighting=boundary_weighting, surface_loss=True,
-                                         metric_band=metric_band, ambient=ambient)
+                                         metric_band=metric_band, ambient=ambient, surface_epsilon=surface_epsilon)
                     item["index"], item["loops"] = 0, loops
                     batch = {k: v.to(weight.device) for k, v in collate_shapes([item]).items()}
                     loss = self.compute_losses(batch, z)["loss"]
@@ -427,7 +427,8 @@ class AutodecoderModule(DeepCurrentsModule):
         fit_kwargs = {"boundary_sigma": float(getattr(datamodule, "boundary_sigma", 0.1)),
                       "boundary_weighting": bool(getattr(datamodule, "boundary_weighting", True)),
                       "metric_band": getattr(datamodule, "metric_band", None),
-                      "sampling": getattr(datamodule, "sampling", None)}
+                      "sampling": getattr(datamodule, "sampling", None),
+                      "surface_epsilon": float(getattr(datamodule, "surface_epsilon", SURFACE_EPSILON))}
         fit_seconds = 0.0
         for k, shape in enumerate(held_out):
             loops = shape.loop_points()
