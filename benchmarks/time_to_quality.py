@@ -132,8 +132,9 @@ class Snapshots(L.Callback):
     ``by_steps``), and at the end. Records steps, training seconds and this process's CPU seconds (less
     sensitive to other users' load than wall seconds)."""
 
-    def __init__(self, times: list[float], wall0: float, cpu0: float, by_steps: bool = False):
+    def __init__(self, times: list[float], wall0: float, cpu0: float, by_steps: bool = False, part: str = "current"):
         self.times = sorted(times)
+        self.part = part  # the LightningModule's attribute whose weights are copied (a family's: "family")
         self.by_steps = by_steps
         self.copies: list[dict] = []
         self.wall0, self.cpu0 = wall0, cpu0  # clocks read before the run was built (setup counts)
@@ -141,7 +142,7 @@ class Snapshots(L.Callback):
     def _copy(self, trainer, pl_module):
         self.copies.append({"steps": int(trainer.global_step), "train_seconds": pl_module.elapsed_train_seconds(),
                             "seconds": time.perf_counter() - self.wall0, "cpu_seconds": time.process_time() - self.cpu0,
-                            "state": copy.deepcopy(pl_module.current.state_dict())})
+                            "state": copy.deepcopy(getattr(pl_module, self.part).state_dict())})
 
     def on_train_batch_end(self, trainer, pl_module, *args):
         now = trainer.global_step if self.by_steps else pl_module.elapsed_train_seconds()
@@ -159,8 +160,10 @@ def compose_cfg(overrides: list[str]):
         return compose(config_name="train", overrides=overrides)
 
 
-def train_recipe(overrides: list[str], seconds: float, num_copies: int, steps: int | None = None):
-    """Trains one recipe for ``seconds`` of wall clock (or ``steps`` steps). → (module, cfg, snapshot records)."""
+def train_recipe(overrides: list[str], seconds: float, num_copies: int, steps: int | None = None,
+                 part: str = "current"):
+    """Trains one recipe for ``seconds`` of wall clock (or ``steps`` steps), copying ``part``'s weights.
+    → (module, cfg, snapshot records)."""
     budget = [f"trainer.max_steps={steps}"] if steps else ["trainer.max_steps=-1", f"trainer.max_time={seconds}"]
     cfg = compose_cfg([*overrides, "logger=none", "trainer=cpu", *budget, "trainer.enable_progress_bar=false",
                        "trainer.enable_model_summary=false", "callbacks.model_checkpoint=null", "callbacks.media=null"])
@@ -169,7 +172,8 @@ def train_recipe(overrides: list[str], seconds: float, num_copies: int, steps: i
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     datamodule, module = build(cfg)
     horizon = steps or seconds
-    snaps = Snapshots([horizon * 2.0**-k for k in range(num_copies - 1, 0, -1)], wall0, cpu0, by_steps=bool(steps))
+    snaps = Snapshots([horizon * 2.0**-k for k in range(num_copies - 1, 0, -1)], wall0, cpu0, by_steps=bool(steps),
+                      part=part)
     trainer = instantiate(cfg.trainer, logger=False, callbacks=[snaps], enable_checkpointing=False,
                           **trainer_overrides(cfg))
     trainer.fit(module, datamodule=datamodule)
