@@ -11,7 +11,7 @@ import torch
 from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, compose_cfg, written_curve_length
 
 from deepcurrents.errors import UserInputError
-from deepcurrents.experiments.runner import build, train, training_threads
+from deepcurrents.experiments.runner import build, evaluation_threads, train, training_threads
 
 TINY = [*QUIET_CPU, *TINY_NET, *TINY_EVAL, "trainer.max_steps=6", "callbacks.model_checkpoint.every_n_train_steps=3"]
 
@@ -101,6 +101,10 @@ def test_training_threads_leave_the_loader_workers_their_cores(monkeypatch):
     assert threads(two, torch_threads="auto", **{"data.num_workers": 0}) == 1  # two DDP processes on 2 cores
     assert threads(one, torch_threads=3) == 3
     assert threads(one, torch_threads="null", **{"data.num_workers": 1}) is None
+    # the final evaluation: an integer holds for the whole run, auto and null give torch's choice back
+    assert evaluation_threads(compose_cfg(["torch_threads=1"])) == 1
+    assert evaluation_threads(compose_cfg(["torch_threads=auto"])) is None
+    assert evaluation_threads(compose_cfg([])) is None
     assert compose_cfg(["experiment=latent_hands", "preset=cpu"]).torch_threads == "auto"
     assert compose_cfg(["experiment=latent_heads", "preset=cpu"]).torch_threads is None
     assert compose_cfg(["experiment=recon_hand", "preset=cpu"]).torch_threads is None

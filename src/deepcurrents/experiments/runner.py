@@ -151,6 +151,14 @@ def training_threads(cfg: DictConfig, trainer: L.Trainer) -> int | None:
     return threads if threads < torch.get_num_threads() else None
 
 
+def evaluation_threads(cfg: DictConfig) -> int | None:
+    """Torch threads of the final evaluation: an integer ``torch_threads`` holds for the whole run (a user who
+    shares the cores with other jobs asked for it); ``auto`` and null give torch's choice back, since the loader
+    workers that ``auto`` left cores for are gone by then."""
+    value = cfg.get("torch_threads")
+    return None if value is None or value == "auto" else positive_int("torch_threads", value)
+
+
 @contextmanager
 def torch_threads(threads: int | None):
     """``torch.set_num_threads(threads)`` for the block (None: unchanged), then torch's previous setting: the
@@ -231,7 +239,8 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     if not trainer.is_global_zero:
         return None
     started = time.perf_counter()
-    metrics = module.final_evaluation(out_dir)
+    with torch_threads(evaluation_threads(cfg)):
+        metrics = module.final_evaluation(out_dir)
     if metrics is not None:  # the final evaluation's own cost, beside train_seconds (issue: at most a fifth of it)
         metrics["evaluation_seconds"] = round(time.perf_counter() - started, 3)
         module.write_metrics(out_dir, metrics)
