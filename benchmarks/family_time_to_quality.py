@@ -59,6 +59,15 @@ def score(module, copies: list[dict], ucd_samples: int, resolution: int | None, 
     return rows
 
 
+def write_csv(rows: list[dict], path: Path) -> None:
+    fields = ["recipe", "repeat", "steps", "seconds", "train_seconds", "cpu_seconds", "shape", "ucd",
+              "boundary_error", "load_before", "load_after"]
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
 def mean_ucd(rows: list[dict]) -> float:
     """Mean UCD over the shapes of one copy; an empty mesh (UCD None) counts as infinitely far."""
     values = [r["ucd"] if r["ucd"] is not None else float("inf") for r in rows]
@@ -76,7 +85,10 @@ def summarise(rows: list[dict]) -> list[dict]:
                     "train_seconds": first["train_seconds"], "cpu_seconds": first["cpu_seconds"],
                     "ucd_mean": mean_ucd(group),
                     "ucd_worst": max(r["ucd"] if r["ucd"] is not None else float("inf") for r in group),
-                    "boundary_error_mean": float(np.mean([r["boundary_error"] for r in group])),
+                    # an empty mesh has no border (None): counted apart
+                    "boundary_error_mean": float(np.mean([r["boundary_error"] for r in group
+                                                          if r["boundary_error"] is not None] or [np.nan])),
+                    "empty_meshes": sum(r["ucd"] is None for r in group),
                     "load_before": first["load_before"], "load_after": first["load_after"]})
     return out
 
@@ -169,15 +181,10 @@ def main() -> None:
                 last = summarise(scored)[-1]
                 print(f"{recipe:10s} repeat {repeat}: {last['steps']:5d} steps in {last['seconds']:6.1f} s "
                       f"(cpu {last['cpu_seconds']:6.1f} s): mean UCD {last['ucd_mean']:.4f}, worst "
-                      f"{last['ucd_worst']:.4f}, boundary error {last['boundary_error_mean']:.2g} "
-                      f"[load {load0:.1f}→{load1:.1f}]", flush=True)
+                      f"{last['ucd_worst']:.4f}, boundary error {last['boundary_error_mean']:.2g}, "
+                      f"{last['empty_meshes']} empty [load {load0:.1f}→{load1:.1f}]", flush=True)
+                write_csv(rows, RESULTS / f"{args.out}.csv")  # after every run: a later failure keeps these
 
-    fields = ["recipe", "repeat", "steps", "seconds", "train_seconds", "cpu_seconds", "shape", "ucd",
-              "boundary_error", "load_before", "load_after"]
-    with open(RESULTS / f"{args.out}.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
     records = summarise(rows)
     title = f"{Path(args.data).name} {', '.join(args.shapes)} ({torch.get_num_threads()} thread(s))"
     plot(records, RESULTS / f"{args.out}.png", args.threshold[-1], title)
