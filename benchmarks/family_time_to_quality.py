@@ -24,7 +24,6 @@ import csv
 import json
 import os
 import platform
-import re
 import sys
 import tempfile
 from pathlib import Path
@@ -33,7 +32,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from time_to_quality import RESULTS, ROOT, train_recipe  # noqa: E402  (a sibling script, not a package)
+from time_to_quality import RESULTS, ROOT, resolve_recipes, time_to_reach, train_recipe  # noqa: E402  (a sibling script, not a package)
 
 RECIPES: dict[str, list[str]] = {
     "paper": ["preset=paper"],  # the paper's sizes (8 meshes × 4000 samples, latent 256, 4 × 256 decoder)
@@ -93,14 +92,6 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
-def time_to_reach(records: list[dict], threshold: float) -> float | None:
-    """First training time (seconds) at which the mean UCD ≤ threshold, None if never."""
-    for r in sorted(records, key=lambda r: r["seconds"]):
-        if r["ucd_mean"] <= threshold:
-            return r["seconds"]
-    return None
-
-
 def plot(records: list[dict], path: Path, threshold: float, title: str) -> None:
     import matplotlib
 
@@ -148,15 +139,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
-    recipes = dict(RECIPES)
-    for spec in args.recipe:
-        name, _, overrides = spec.partition("=")
-        recipes[name] = re.split(r",(?![^\[]*\])", overrides)  # commas inside [a,b] stay
-        if name not in args.recipes:
-            args.recipes.append(name)
-    unknown = [r for r in args.recipes if r not in recipes]
-    if unknown:
-        raise SystemExit(f"--recipes: unknown {unknown}; known: {sorted(recipes)} (add one with --recipe).")
+    recipes = resolve_recipes(RECIPES, args.recipe, args.recipes)
     folder = (ROOT / args.data) if not Path(args.data).is_absolute() else Path(args.data)
     files = [folder / f"{stem}.ply" for stem in args.shapes]
     missing = [str(f) for f in files if not f.is_file()]
@@ -190,8 +173,8 @@ def main() -> None:
     plot(records, RESULTS / f"{args.out}.png", args.threshold[-1], title)
     summary: dict = {}
     for threshold in args.threshold:
-        times = {rc: [time_to_reach([r for r in records if r["recipe"] == rc and r["repeat"] == k], threshold)
-                      for k in range(args.repeats)] for rc in args.recipes}
+        times = {rc: [time_to_reach([r for r in records if r["recipe"] == rc and r["repeat"] == k], threshold,
+                                    "ucd_mean") for k in range(args.repeats)] for rc in args.recipes}
         base = next((t for ts in times.values() for t in ts if t is not None), None)
         cells = [f"{rc} " + "/".join(f"{t:.0f} s ({t / base:.2f}×)" if t is not None else "—" for t in ts)
                  for rc, ts in times.items()]

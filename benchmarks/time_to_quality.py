@@ -154,6 +154,21 @@ class Snapshots(L.Callback):
         self._copy(trainer, pl_module)
 
 
+def resolve_recipes(known: dict[str, list[str]], specs: list[str], names: list[str]) -> dict[str, list[str]]:
+    """The known recipes plus each ``--recipe NAME=OVERRIDE,OVERRIDE`` (appended to ``names`` when not there);
+    exits with one sentence if ``names`` asks for an unknown one. → {name: overrides}."""
+    recipes = dict(known)
+    for spec in specs:
+        name, _, overrides = spec.partition("=")
+        recipes[name] = re.split(r",(?![^\[]*\])", overrides)  # commas inside [a,b] stay
+        if name not in names:
+            names.append(name)
+    unknown = [r for r in names if r not in recipes]
+    if unknown:
+        raise SystemExit(f"--recipes: unknown {unknown}; known: {sorted(recipes)} (add one with --recipe).")
+    return recipes
+
+
 def compose_cfg(overrides: list[str]):
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
@@ -360,10 +375,10 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
     return rows
 
 
-def time_to_reach(rows: list[dict], threshold: float) -> float | None:
-    """First training time (seconds) at which mass_area / exact ≤ threshold, None if never."""
+def time_to_reach(rows: list[dict], threshold: float, key: str = "ratio") -> float | None:
+    """First training time (seconds) at which ``key`` (mass_area / exact) ≤ threshold, None if never."""
     for r in sorted(rows, key=lambda r: r["seconds"]):
-        if r["ratio"] <= threshold:
+        if r[key] <= threshold:
             return r["seconds"]
     return None
 
@@ -429,15 +444,7 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    recipes = dict(RECIPES)
-    for spec in args.recipe:
-        name, _, overrides = spec.partition("=")
-        recipes[name] = re.split(r",(?![^\[]*\])", overrides)  # commas inside [a,b] stay
-        if name not in args.recipes:
-            args.recipes.append(name)
-    unknown = [r for r in args.recipes if r not in recipes]
-    if unknown:
-        raise SystemExit(f"--recipes: unknown {unknown}; known: {sorted(recipes)} (add one with --recipe).")
+    recipes = resolve_recipes(RECIPES, args.recipe, args.recipes)
     RESULTS.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
