@@ -15,6 +15,7 @@ import pytest
 import torch
 import trimesh
 from conftest import ROOT, compose_cfg
+from omegaconf import OmegaConf
 from scipy.spatial.transform import Rotation
 
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh, euler_rotation, principal_directions
@@ -309,15 +310,23 @@ def test_datamodule_batches_and_model_kwargs(family_dir):
 
 def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):
     """data.surface_epsilon=ε: the surface loss's offsets ε ~ U[0.995 ε, 1.005 ε] (the paper's 0.02 gives its
-    U[0.0199, 0.0201]); they reach the held-out latent fit through the same key."""
+    U[0.0199, 0.0201]); a range [min, max] (a list from the config) gives each sample a step of it; they reach the
+    held-out latent fit through the same key."""
     for eps in (0.02, 0.005):
         dm = FamilyDataModule(str(family_dir), meshes_per_batch=2, num_samples=16, num_surface_samples=400,
                               surface_epsilon=eps)
         offsets = next(iter(dm.train_dataloader()))["epsilon"]
         assert float(offsets.min()) >= 0.995 * eps * (1 - 1e-6) and float(offsets.max()) <= 1.005 * eps * (1 + 1e-6)
         assert float(offsets.max() - offsets.min()) > 0.009 * eps  # spread over (nearly) the whole interval
-    for bad in (0.0, -0.01, 1.5, True, "0.01"):
-        with pytest.raises(ConfigError, match=r"data.surface_epsilon=.* must be a distance in \(0, 1\)"):
+    # a range: each sample's ε is one of the geometric steps from max down to min (± 0.5 %)
+    dm = FamilyDataModule(str(family_dir), meshes_per_batch=2, num_samples=16, num_surface_samples=400,
+                          surface_epsilon=OmegaConf.create([0.01, 0.04]))
+    assert dm.surface_epsilon == (0.01, 0.04)
+    offsets = next(iter(dm.train_dataloader()))["epsilon"].numpy().ravel()
+    assert offsets.min() >= 0.995 * 0.01 * (1 - 1e-6) and offsets.max() <= 1.005 * 0.04 * (1 + 1e-6)
+    assert np.all(np.abs(offsets[:, None] / np.geomspace(0.04, 0.01, 4) - 1).min(1) <= 0.005 + 1e-6)
+    for bad in (0.0, -0.01, 1.5, True, "0.01", [0.04, 0.02], [0.0, 0.02], [0.01, 0.02, 0.03], [0.01, "x"]):
+        with pytest.raises(ConfigError, match=r"data.surface_epsilon=.* must be a distance in \(0, 1\) or a range"):
             FamilyDataModule(str(family_dir), surface_epsilon=bad)
 
 
@@ -502,7 +511,6 @@ def run_module(*args: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow
 def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp_path):
-    from omegaconf import OmegaConf
 
     from deepcurrents.cli.generate import GenerateConfig, generate
     from deepcurrents.cli.interpolate import InterpolateConfig, interpolate

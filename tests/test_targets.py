@@ -296,3 +296,49 @@ def test_metric_band_makes_the_metric_euclidean_away_from_the_surface():
     torch.testing.assert_close(band["metric"][far].double(), eye.expand(int(far.sum()), 3, 3))
     # beyond the square's rim the closest point is on Γ: w I in both
     torch.testing.assert_close(band["metric"][~inside], paper["metric"][~inside])
+
+
+def folded_sheet(thickness: float, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
+    """A thin slab's two faces: the square [-0.5, 0.5]^2 at z = 0 (normal +z) and again at z = −thickness
+    (normal −z), as the two sides of a finger; open, 4(n−1)^2 faces."""
+    v, f = flat_disk_grid(n)
+    lower = v.copy()
+    lower[:, 2] = -thickness
+    return np.concatenate([v, lower]), np.concatenate([f, f[:, ::-1] + len(v)])
+
+
+def flat_disk_grid(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The flat grid patch of ``bumpy_patch`` (normals +z) without its bumps."""
+    v, f = bumpy_patch(n)
+    v[:, 2] = 0.0
+    return v, f
+
+
+@pytest.mark.parametrize(("thickness", "expected"), [(0.06, 0.04), (0.03, 0.04 * 0.25 ** (2 / 3)), (0.012, 0.01)])
+def test_clear_surface_epsilon_keeps_the_offsets_on_their_own_side_of_a_thin_slab(thickness, expected):
+    """A range [0.01, 0.04] tried in the steps 0.04, 0.0252, 0.0159, 0.01: on the upper face of a slab of
+    thickness t, y − εn lies between the faces while ε < t, and there it is clear while also t − ε ≥ 0.25 ε, i.e.
+    ε ≤ 0.8 t (hand-computed: t = 0.06 → 0.04; t = 0.03 → 0.0159; t = 0.012: no step but the floor). Past the
+    lower face it is on that face's outer side and never clear. A single face keeps 0.04 everywhere."""
+    from deepcurrents.data.targets import clear_surface_epsilon, target_sample
+
+    v, f = folded_sheet(thickness)
+    target = MeshTarget(v, f)
+    y = np.array([[x, yy, 0.0] for x in (-0.2, 0.0, 0.15) for yy in (-0.1, 0.2)])
+    n = np.tile([0.0, 0.0, 1.0], (len(y), 1))
+    np.testing.assert_allclose(clear_surface_epsilon(target, y, n, 0.01, 0.04), expected, rtol=1e-12)
+    # from the lower face (normal −z) the slab is the same
+    np.testing.assert_allclose(clear_surface_epsilon(target, y * [1, 1, 0] - [0, 0, thickness], -n, 0.01, 0.04),
+                               expected, rtol=1e-12)
+    single = MeshTarget(*flat_disk_grid(9))
+    np.testing.assert_allclose(clear_surface_epsilon(single, y, n, 0.01, 0.04), 0.04)
+    # in a batch: each sample's ε is one of the steps (± 0.5 %), a fixed ε is the paper's U[0.995 ε, 1.005 ε]
+    gen = torch.Generator().manual_seed(0)
+    eps = target_sample(target, 8, 300, gen, surface_epsilon=(0.01, 0.04))["epsilon"].numpy()
+    steps = np.geomspace(0.04, 0.01, 4)
+    nearest = steps[np.abs(eps[:, None] / steps - 1).argmin(1)]
+    assert np.all(np.abs(eps / nearest - 1) <= 0.005 + 1e-6)
+    if thickness > 0.05:  # away from the rims, the whole upper and lower faces are clear at 0.04
+        assert np.mean(nearest == 0.04) > 0.8
+    fixed = target_sample(target, 8, 300, gen, surface_epsilon=0.03)["epsilon"].numpy()
+    assert fixed.min() >= 0.03 * 0.995 * (1 - 1e-6) and fixed.max() <= 0.03 * 1.005 * (1 + 1e-6)

@@ -35,7 +35,13 @@ from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
 from deepcurrents.data.recon import ambient_options, ambient_sampler
 from deepcurrents.data.sampling import NearTargetSampler
-from deepcurrents.data.targets import SURFACE_EPSILON, MeshTarget, mesh_boundary_loops, target_sample
+from deepcurrents.data.targets import (
+    SURFACE_EPSILON,
+    MeshTarget,
+    mesh_boundary_loops,
+    surface_epsilon_range,
+    target_sample,
+)
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
@@ -201,7 +207,7 @@ class FamilySamples(IterableDataset):
                  num_surface_samples: int, ranges: AugmentationRanges, augment: bool = True,
                  boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0, rank: int = 0,
                  start_step: int = 0, metric_band: float | None = None, sampling: dict | None = None,
-                 surface_epsilon: float = SURFACE_EPSILON):
+                 surface_epsilon: float | tuple[float, float] = SURFACE_EPSILON):
         self.meshes, self.shard = meshes, np.asarray(shard, dtype=np.int64)
         self.meshes_per_batch, self.num_samples = meshes_per_batch, num_samples
         self.num_surface_samples, self.ranges, self.augment = num_surface_samples, ranges, augment
@@ -265,7 +271,9 @@ class FamilyDataModule(L.LightningDataModule):
         sampling: the ambient samples, a reconstruction's ``data.sampling`` (``data.recon.ambient_options``):
             uniform (the paper's) or "near", importance-weighted around points of each (augmented) mesh.
         surface_epsilon: ε of the surface loss's offsets y ± εn (the paper's 0.02, sized for a part that fills
-            the box; ``make data`` hands span a quarter to two fifths of it).
+            the box; ``make data`` hands span a quarter to two fifths of it), or a range [ε_min, ε_max]: per
+            sample the largest ε in it whose offsets stay clear of the rest of the mesh (beyond the paper;
+            ``data.targets.clear_surface_epsilon``).
     """
 
     def __init__(
@@ -288,7 +296,7 @@ class FamilyDataModule(L.LightningDataModule):
         mesh_scale_range: Sequence[float] = (1.0, 1.0),
         metric_band: float | None = None,
         sampling: dict | None = None,
-        surface_epsilon: float = SURFACE_EPSILON,
+        surface_epsilon: float | Sequence[float] = SURFACE_EPSILON,
     ):
         super().__init__()
         for key, value in (("meshes_per_batch", meshes_per_batch), ("num_samples", num_samples),
@@ -305,10 +313,6 @@ class FamilyDataModule(L.LightningDataModule):
                                         or not metric_band > 0):
             raise ConfigError(f"data.metric_band={metric_band!r} must be a positive distance (null: the paper's "
                               "metric).")
-        if isinstance(surface_epsilon, bool) or not isinstance(surface_epsilon, (int, float)) \
-                or not 0 < surface_epsilon < 1:
-            raise ConfigError(f"data.surface_epsilon={surface_epsilon!r} must be a distance in (0, 1) (the domain is "
-                              "[-1, 1]^3; the paper's is 0.02).")
         self.ranges = AugmentationRanges(float(rotation_deg), (float(scale_range[0]), float(scale_range[1])),
                                          float(shift), float(bound),
                                          (float(mesh_scale_range[0]), float(mesh_scale_range[1])))
@@ -322,7 +326,8 @@ class FamilyDataModule(L.LightningDataModule):
         self.num_workers, self.seed = num_workers, seed
         self.metric_band = metric_band
         self.sampling = ambient_options(sampling)
-        self.surface_epsilon = float(surface_epsilon)
+        low, high = surface_epsilon_range(surface_epsilon)
+        self.surface_epsilon = high if low == high else (low, high)
 
     @property
     def num_loops(self) -> int:

@@ -17,6 +17,7 @@ hinge loss (δ − f(y − εn) + f(y + εn))^+ can reach zero; the reversed rim
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import igl
@@ -25,11 +26,16 @@ import torch
 from scipy.spatial import cKDTree
 
 from deepcurrents.data.sampling import NearTargetSampler
+from deepcurrents.errors import ConfigError
 from deepcurrents.geometry.topology import border_edges
 
 # the paper's surface-loss offsets ε ~ U[0.0199, 0.0201]: ε = 0.02 ± 0.5 %
 SURFACE_EPSILON = 0.02
 EPSILON_JITTER = 0.005
+# A range [ε_min, ε_max] of offsets is tried in this many geometric steps from ε_max down; an offset point is
+# clear when it lies on its own side of the face nearest to it and at least this fraction of ε from Σ.
+EPSILON_LEVELS = 4
+EPSILON_CLEARANCE = 0.25
 # Barycentric tolerance for "the closest point lies on a boundary edge / vertex".
 _BARY_TOL = 1e-7
 
@@ -265,19 +271,65 @@ class PointCloudTarget:
         return target_sample(self, num_ambient, num_surface, generator, **kwargs)
 
 
+def surface_epsilon_range(value, name: str = "data.surface_epsilon") -> tuple[float, float]:
+    """The surface loss's offset as (ε_min, ε_max): a distance ε gives (ε, ε); a pair [ε_min, ε_max] asks for the
+    largest ε in it at which a sample's offsets stay clear of the rest of Σ (:func:`clear_surface_epsilon`).
+    ConfigError, naming ``name``, for anything but distances 0 < ε_min ≤ ε_max < 1."""
+    many = isinstance(value, Sequence) and not isinstance(value, str)  # a list, a tuple or an OmegaConf ListConfig
+    pair = list(value) if many else [value, value]
+    ok = len(pair) == 2 and all(isinstance(e, (int, float)) and not isinstance(e, bool) for e in pair)
+    if not ok or not 0 < pair[0] <= pair[1] < 1:
+        shown = list(value) if many else value
+        raise ConfigError(f"{name}={shown!r} must be a distance in (0, 1) or a range [min, max] of them with min ≤ "
+                          "max (the domain is [-1, 1]^3; the paper's is 0.02).")
+    return float(pair[0]), float(pair[1])
+
+
+def clear_surface_epsilon(target: MeshTarget | PointCloudTarget, points: np.ndarray, normals: np.ndarray,
+                          low: float, high: float, levels: int = EPSILON_LEVELS,
+                          clearance: float = EPSILON_CLEARANCE) -> np.ndarray:
+    """Per surface sample, the largest ε of ``levels`` geometric steps from ``high`` down to ``low`` at which both
+    offset points y ± εn are clear: each lies on its own side of the face nearest to it (y − εn behind it,
+    y + εn in front) and at least ``clearance``·ε from Σ. A larger ε is a gentler slope δ / 2ε for the surface
+    hinge (less fog, README "The surface loss's offset ε"), but across a finger thinner than ε, or into its
+    neighbour, the offset point lands on the wrong side of another sheet and the hinge asks f to fill the gap
+    (a mitten). Samples clear at no step keep ``low``.
+
+    points, normals (M, 3) → ε (M,) float64. Costs up to 2·levels closest-point queries per sample (only the
+    samples not yet settled are queried again)."""
+    points, normals = _as_numpy(points, np.float64), _as_numpy(normals, np.float64)
+    eps = np.full(len(points), low)
+    pending = np.arange(len(points))
+    for e in np.geomspace(high, low, levels)[:-1] if high > low else []:
+        if len(pending) == 0:
+            break
+        side = np.repeat([-1.0, 1.0], len(pending))[:, None]  # y − εn for every pending sample, then y + εn
+        q = np.tile(points[pending], (2, 1)) + side * e * np.tile(normals[pending], (2, 1))
+        near = target.closest(q)  # one query for both sides
+        d = q - near.point
+        ok = (side[:, 0] * np.einsum("nd,nd->n", d, near.normal) > 0) & (np.linalg.norm(d, axis=1) >= clearance * e)
+        clear = ok[: len(pending)] & ok[len(pending):]
+        eps[pending[clear]] = e
+        pending = pending[~clear]
+    return eps
+
+
 def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_surface: int,
                   generator: torch.Generator, boundary_sigma: float = 0.1, boundary_weighting: bool = True,
                   surface_loss: bool = True, domain: float = 1.0,
                   ambient: NearTargetSampler | None = None,
                   metric_band: float | None = None,
-                  surface_epsilon: float = SURFACE_EPSILON) -> dict[str, torch.Tensor]:
+                  surface_epsilon: float | tuple[float, float] = SURFACE_EPSILON) -> dict[str, torch.Tensor]:
     """One training batch for a target (see :func:`reconstruction_sample`). ``ambient``: where the ambient
     samples come from (None: uniform in [-domain, domain]^3, the paper's; a ``NearTargetSampler``: a
     mixture concentrated near Σ whose importance weights are folded into the metric, B_x ← w_imp B_x, so
     the current loss keeps its expectation). ``metric_band`` (beyond the paper; None: off): points farther
     than this from Σ get the Euclidean metric w_x I, since the target current vanishes there; the paper's
     w_x (I − n nᵀ) leaves ω along n free everywhere, and a small network fills that freedom with fog.
-    ``surface_epsilon``: the surface loss's offsets ε ~ U[(1 − 0.005) ε, (1 + 0.005) ε] (the paper's 0.02)."""
+    ``surface_epsilon``: the surface loss's offsets ε ~ U[(1 − 0.005) ε, (1 + 0.005) ε] (the paper's 0.02); a range
+    [ε_min, ε_max] (beyond the paper): each sample's ε is the largest in it that stays clear of the rest of Σ
+    (:func:`clear_surface_epsilon`), with the same ± 0.5 %."""
+    eps_low, eps_high = surface_epsilon_range(surface_epsilon)
     if ambient is None:
         x = (torch.rand(num_ambient, 3, generator=generator, dtype=torch.float64) * 2.0 - 1.0) * domain
         importance = None
@@ -299,11 +351,12 @@ def target_sample(target: MeshTarget | PointCloudTarget, num_ambient: int, num_s
     batch = {"x": x.float(), "metric": metric}
     if surface_loss and num_surface > 0:
         pts, nrm = target.sample_surface(num_surface, generator)
-        lo, hi = surface_epsilon * (1.0 - EPSILON_JITTER), surface_epsilon * (1.0 + EPSILON_JITTER)
         batch["surface_points"] = torch.as_tensor(pts, dtype=torch.float32)
         batch["surface_normals"] = torch.as_tensor(nrm, dtype=torch.float32)
-        eps = lo + (hi - lo) * torch.rand(num_surface, generator=generator, dtype=torch.float64)
-        batch["epsilon"] = eps.float()
+        base = eps_high if eps_low == eps_high else \
+            torch.as_tensor(clear_surface_epsilon(target, pts, nrm, eps_low, eps_high))
+        lo, hi = base * (1.0 - EPSILON_JITTER), base * (1.0 + EPSILON_JITTER)
+        batch["epsilon"] = (lo + (hi - lo) * torch.rand(num_surface, generator=generator, dtype=torch.float64)).float()
     return batch
 
 

@@ -206,7 +206,7 @@ class AutodecoderModule(DeepCurrentsModule):
                    lr: float = 1e-2, num_samples: int = 2000, num_surface_samples: int = 2000,
                    boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0,
                    metric_band: float | None = None, sampling: dict | None = None,
-                   surface_epsilon: float = SURFACE_EPSILON) -> tuple[torch.Tensor, list[float]]:
+                   surface_epsilon: float | tuple[float, float] = SURFACE_EPSILON) -> tuple[torch.Tensor, list[float]]:
         """The autodecoder's test-time step: the latent code of a shape not trained on, by Adam on z alone
         with the training losses (current loss under B_x and surface loss on the unaugmented mesh, fresh
         samples every step); the decoder, the encoders and the training codes stay frozen. z starts at
@@ -428,7 +428,7 @@ class AutodecoderModule(DeepCurrentsModule):
                       "boundary_weighting": bool(getattr(datamodule, "boundary_weighting", True)),
                       "metric_band": getattr(datamodule, "metric_band", None),
                       "sampling": getattr(datamodule, "sampling", None),
-                      "surface_epsilon": float(getattr(datamodule, "surface_epsilon", SURFACE_EPSILON))}
+                      "surface_epsilon": getattr(datamodule, "surface_epsilon", SURFACE_EPSILON)}
         fit_seconds = 0.0
         for k, shape in enumerate(held_out):
             loops = shape.loop_points()
