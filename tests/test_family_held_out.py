@@ -94,6 +94,12 @@ def test_latent_fit_moves_only_z_and_lowers_the_loss():
     assert [p.requires_grad for p in module.parameters()] == flags
     with pytest.raises(ConfigError, match="model.latent_fit.steps"):
         module.fit_latent(mesh.vertices, mesh.faces, [mesh.vertices[-24:]], steps=0)
+    # the surface loss's ε (data.surface_epsilon, a distance or a range) reaches the fit's samples
+    short = {"steps": 3, "lr": 0.1, "num_samples": 64, "num_surface_samples": 64, "seed": 1}
+    paper = module.fit_latent(mesh.vertices, mesh.faces, [mesh.vertices[-24:]], **short)[1]
+    ranged = module.fit_latent(mesh.vertices, mesh.faces, [mesh.vertices[-24:]], surface_epsilon=(0.02, 0.04),
+                               **short)[1]
+    assert np.all(np.isfinite(ranged)) and ranged != paper
 
 
 def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
