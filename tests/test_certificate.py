@@ -65,3 +65,40 @@ def test_concentrated_on_the_disk_it_certifies_the_disk_area(untrained):
     assert bound > disk - 4 * err                        # an upper bound of the minimal area …
     assert bound < disk * 1.03 + 4 * err                 # … and, concentrated on the disk, a tight one
     assert np.isfinite(bound)
+
+
+class _GaussianSheet(torch.nn.Module):
+    """A current on the plane z = 0: ω = c·J·φ_σ(z) e_z with φ_σ the N(0, σ²) density, so ∫ ω·n dz over
+    [−h, h] is c·J·erf(h / σ√2) (hand-computed) and |ω| integrates to c·J per unit area."""
+
+    dim = 3
+    alpha_scale = 1e-3
+
+    def __init__(self, c: float, sigma: float):
+        super().__init__()
+        self.c, self.sigma = c, sigma
+        self.anchor = torch.nn.Parameter(torch.zeros(()))  # for device_of
+
+    def forward(self, x, create_graph=False):
+        z = x[:, 2:3]
+        density = torch.exp(-0.5 * (z / self.sigma) ** 2) / (self.sigma * math.sqrt(2 * math.pi))
+        omega = torch.cat([torch.zeros_like(z), torch.zeros_like(z), self.c * 4 * math.pi * self.alpha_scale * density],
+                          1)
+        return None, omega
+
+
+@pytest.mark.parametrize(("c", "sigma"), [(1.0, 0.004), (0.5, 0.004), (1.0, 0.04)])
+def test_sheet_flux_is_the_share_of_the_jump_across_the_mesh(c, sigma):
+    """sheet_flux on a square mesh of z = 0 (either orientation): c·erf(0.04 / σ√2), i.e. 1 for a full sharp sheet,
+    0.5 for half the jump, 0.683 for a sheet smeared with σ equal to the window's half width."""
+    import trimesh
+
+    from deepcurrents.eval.metrics import sheet_flux
+
+    square = trimesh.Trimesh([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]], [[0, 1, 2], [0, 2, 3]],
+                             process=False)
+    expected = c * math.erf(0.04 / (sigma * math.sqrt(2)))
+    for mesh in (square, trimesh.Trimesh(square.vertices, square.faces[:, ::-1], process=False)):
+        flux = sheet_flux(_GaussianSheet(c, sigma), mesh, num_lines=50, num_steps=161)
+        assert flux.shape == (50,)
+        np.testing.assert_allclose(flux, expected, rtol=2e-3)

@@ -13,7 +13,7 @@ from omegaconf import DictConfig
 
 from deepcurrents.cli.common import output_dir
 from deepcurrents.errors import positive_int
-from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary
+from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary, sheet_flux
 from deepcurrents.eval.plots import plot_mesh_grid
 from deepcurrents.geometry.curves import write_curve_file
 from deepcurrents.models.autodecoder import AutodecoderModule
@@ -42,7 +42,9 @@ def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.
 
     With ``mass_samples`` > 0 the record also has the member's extraction-free ``mass_area`` (Euclidean
     mass E|ω| over U, in area units) and ``crispness`` = mass_area / mesh_area: about 1 for a clean sheet,
-    larger for a foggy current whose mass is spread around the mesh."""
+    larger for a foggy current whose mass is spread around the mesh; and ``sheet_flux``, the median of
+    |∫ ω·n| across the mesh in units of the jump (``eval.metrics.sheet_flux``): about 1 for a full sheet, less
+    where part of the flux crosses elsewhere (which lowers the crispness too)."""
     member = module.member(z, loops)
     result = module.mesh_member(member, module.meshing_bounds(shapes, loops))
     mesh = result.mesh
@@ -55,6 +57,8 @@ def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.
         summary["mass_area"] = mass_to_area(mass, 3, member.alpha_scale)
         area = summary.get("mesh_area")
         summary["crispness"] = summary["mass_area"] / area if area else None
+        # crispness < 1 is a weaker sheet, not a cleaner one: the median flux across the mesh tells them apart
+        summary["sheet_flux"] = float(np.median(sheet_flux(member, mesh, seed=seed))) if len(mesh.faces) else None
     return {"mesh": f"{stem}.ply", "boundary": f"{stem}_boundary.obj", **summary, "_mesh": mesh, "_loops": loops}
 
 
@@ -73,12 +77,16 @@ def closed_on_boundary(record: dict[str, Any]) -> bool:
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     errors = [r["boundary_error"] for r in records if r["boundary_error"] is not None]
     crisp = [r["crispness"] for r in records if r.get("crispness") is not None]
+    flux = [r["sheet_flux"] for r in records if r.get("sheet_flux") is not None]
     return {
         "boundary_error_mean": float(np.mean(errors)) if errors else None,
         "boundary_error_max": float(np.max(errors)) if errors else None,
         "empty_meshes": sum(r["boundary_error"] is None for r in records),
         "crispness_mean": float(np.mean(crisp)) if crisp else None,
         "crispness_max": float(np.max(crisp)) if crisp else None,
+        "crispness_min": float(np.min(crisp)) if crisp else None,
+        "sheet_flux_mean": float(np.mean(flux)) if flux else None,
+        "sheet_flux_min": float(np.min(flux)) if flux else None,
         "meshes_closed_on_boundary": sum(closed_on_boundary(r) for r in records),
     }
 

@@ -137,6 +137,26 @@ def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> np.ndarray:
     return np.asarray(points, dtype=np.float64)
 
 
+def sheet_flux(current, mesh: trimesh.Trimesh, num_lines: int = 400, half_width: float = 0.04,
+               num_steps: int = 81, seed: int = 0) -> np.ndarray:
+    """How much of the jump a current carries across its own mesh: |∫ ω·n ds| along the normal line of
+    ``num_lines`` area-uniform points of the mesh, from −half_width to +half_width (trapezoid rule, ``num_steps``
+    points), in units of the full jump J = jump(3)·alpha_scale. 1 for a current that steps by J across the mesh;
+    below 1 where part of its flux crosses elsewhere (a weaker sheet, whose mass can then be *less* than the mesh's
+    area, so that crispness alone would call it clean); above 1 where ω along n wobbles about the mesh within the
+    window. → (num_lines,) float64."""
+    if len(mesh.faces) == 0:
+        raise ValueError("cannot sample an empty mesh")
+    points, faces = trimesh.sample.sample_surface(mesh, int(num_lines), seed=seed)
+    normals = np.asarray(mesh.face_normals)[faces]
+    s = np.linspace(-half_width, half_width, int(num_steps))
+    lines = np.asarray(points)[:, None, :] + s[None, :, None] * normals[:, None, :]  # (L, K, 3)
+    x = torch.as_tensor(lines.reshape(-1, 3), dtype=torch.float32, device=device_of(current))
+    omega = torch.cat([current(c, create_graph=False)[1].detach() for c in torch.split(x, 1 << 15)])
+    along = np.einsum("lkd,ld->lk", omega.double().cpu().numpy().reshape(len(points), len(s), 3), normals)
+    return np.abs(np.trapezoid(along, s, axis=1)) / (jump(3) * current.alpha_scale)
+
+
 def point_mesh_distance(points: np.ndarray, mesh: trimesh.Trimesh) -> np.ndarray:
     """Euclidean distance from each point to the closest point of a triangle mesh (libigl, exact).
 
