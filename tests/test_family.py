@@ -533,6 +533,9 @@ def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp
         loops = read_curve_file(tmp_path / "g" / item["boundary"])
         expected = brute_force_border_hausdorff(mesh, loops)
         assert item["boundary_error"] == pytest.approx(expected, rel=0.05, abs=2e-3)
+        assert item["crispness"] > 0 and item["sheet_flux"] >= 0  # the fog and the sheet, both reported
+    flux = [it["sheet_flux"] for it in report["items"] if it.get("sheet_flux") is not None]
+    assert report["sheet_flux_mean"] == pytest.approx(np.mean(flux)) and report["sheet_flux_min"] == min(flux)
     report = interpolate(cfg(InterpolateConfig, mode="boundary", a=1, b=2, steps=3, out_dir=str(tmp_path / "b")))
     assert [it["t_boundary"] for it in report["items"]] == [0.0, 0.5, 1.0]
     ends = [read_curve_file(tmp_path / "b" / report["items"][k]["boundary"])[0] for k in (0, 2)]
