@@ -511,7 +511,6 @@ def run_module(*args: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.slow
 def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp_path):
-
     from deepcurrents.cli.generate import GenerateConfig, generate
     from deepcurrents.cli.interpolate import InterpolateConfig, interpolate
 

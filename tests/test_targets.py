@@ -298,16 +298,16 @@ def test_metric_band_makes_the_metric_euclidean_away_from_the_surface():
     torch.testing.assert_close(band["metric"][~inside], paper["metric"][~inside])
 
 
-def folded_sheet(thickness: float, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
+def slab_faces(thickness: float, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
     """A thin slab's two faces: the square [-0.5, 0.5]^2 at z = 0 (normal +z) and again at z = −thickness
     (normal −z), as the two sides of a finger; open, 4(n−1)^2 faces."""
-    v, f = flat_disk_grid(n)
+    v, f = flat_patch(n)
     lower = v.copy()
     lower[:, 2] = -thickness
     return np.concatenate([v, lower]), np.concatenate([f, f[:, ::-1] + len(v)])
 
 
-def flat_disk_grid(n: int) -> tuple[np.ndarray, np.ndarray]:
+def flat_patch(n: int) -> tuple[np.ndarray, np.ndarray]:
     """The flat grid patch of ``bumpy_patch`` (normals +z) without its bumps."""
     v, f = bumpy_patch(n)
     v[:, 2] = 0.0
@@ -322,7 +322,7 @@ def test_clear_surface_epsilon_keeps_the_offsets_on_their_own_side_of_a_thin_sla
     lower face it is on that face's outer side and never clear. A single face keeps 0.04 everywhere."""
     from deepcurrents.data.targets import clear_surface_epsilon, target_sample
 
-    v, f = folded_sheet(thickness)
+    v, f = slab_faces(thickness)
     target = MeshTarget(v, f)
     y = np.array([[x, yy, 0.0] for x in (-0.2, 0.0, 0.15) for yy in (-0.1, 0.2)])
     n = np.tile([0.0, 0.0, 1.0], (len(y), 1))
@@ -330,7 +330,7 @@ def test_clear_surface_epsilon_keeps_the_offsets_on_their_own_side_of_a_thin_sla
     # from the lower face (normal −z) the slab is the same
     np.testing.assert_allclose(clear_surface_epsilon(target, y * [1, 1, 0] - [0, 0, thickness], -n, 0.01, 0.04),
                                expected, rtol=1e-12)
-    single = MeshTarget(*flat_disk_grid(9))
+    single = MeshTarget(*flat_patch(9))
     np.testing.assert_allclose(clear_surface_epsilon(single, y, n, 0.01, 0.04), 0.04)
     # in a batch: each sample's ε is one of the steps (± 0.5 %), a fixed ε is the paper's U[0.995 ε, 1.005 ε]
     gen = torch.Generator().manual_seed(0)

@@ -129,12 +129,18 @@ def curve_length(curves: list[np.ndarray]) -> float:
     return float(sum(np.linalg.norm(np.diff(c, axis=0), axis=1).sum() for c in curves))
 
 
-def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> np.ndarray:
-    """``n`` points drawn uniformly (by area) on a triangle mesh, reproducibly. → (n, 3) float64."""
+def sample_surface_faces(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` points drawn uniformly (by area) on a triangle mesh, reproducibly, and the face each lies on.
+    → (points (n, 3) float64, faces (n,) int)."""
     if len(mesh.faces) == 0:
         raise ValueError("cannot sample an empty mesh")
-    points, _ = trimesh.sample.sample_surface(mesh, int(n), seed=seed)
-    return np.asarray(points, dtype=np.float64)
+    points, faces = trimesh.sample.sample_surface(mesh, int(n), seed=seed)
+    return np.asarray(points, dtype=np.float64), np.asarray(faces)
+
+
+def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> np.ndarray:
+    """``n`` points drawn uniformly (by area) on a triangle mesh, reproducibly. → (n, 3) float64."""
+    return sample_surface_faces(mesh, n, seed)[0]
 
 
 def sheet_flux(current, mesh: trimesh.Trimesh, num_lines: int = 400, half_width: float = 0.04,
@@ -144,10 +150,9 @@ def sheet_flux(current, mesh: trimesh.Trimesh, num_lines: int = 400, half_width:
     points), in units of the full jump J = jump(3)·alpha_scale. 1 for a current that steps by J across the mesh;
     below 1 where part of its flux crosses elsewhere (a weaker sheet, whose mass can then be *less* than the mesh's
     area, so that crispness alone would call it clean); above 1 where ω along n wobbles about the mesh within the
-    window. → (num_lines,) float64."""
-    if len(mesh.faces) == 0:
-        raise ValueError("cannot sample an empty mesh")
-    points, faces = trimesh.sample.sample_surface(mesh, int(num_lines), seed=seed)
+    window. Where a part is thinner than 2·half_width the line reaches its far side, whose opposite flux cancels:
+    compare values on the same shapes. → (num_lines,) float64."""
+    points, faces = sample_surface_faces(mesh, num_lines, seed)
     normals = np.asarray(mesh.face_normals)[faces]
     s = np.linspace(-half_width, half_width, int(num_steps))
     lines = np.asarray(points)[:, None, :] + s[None, :, None] * normals[:, None, :]  # (L, K, 3)
