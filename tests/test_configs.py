@@ -195,6 +195,18 @@ def test_lengths_and_sizes_of_every_experiment_are_pinned(experiment, preset):
     assert dict(zip(COLUMNS, got, strict=True)) == dict(zip(COLUMNS, LENGTHS[experiment, preset], strict=True))
 
 
+BUDGET_SCHEDULE = ("model.optim.schedule=cosine", "model.optim.warmup=0.05", "model.optim.min_factor=0.01",
+                   "model.optim.fused=true")
+
+
+@pytest.mark.parametrize("experiment", [e for e in EXPERIMENTS if e not in SUITES])
+def test_every_trained_model_takes_the_budget_schedule_without_a_plus(experiment):
+    """README, Recipes: the learning rate can follow the budget in every run, families included; a key missing
+    from a model's optim node would need Hydra's `+` there and be refused (the grid's ADMM ignores it)."""
+    optim = compose_cfg([f"experiment={experiment}", "preset=paper", *BUDGET_SCHEDULE]).model.optim
+    assert (optim.schedule, optim.warmup, optim.min_factor, optim.fused) == ("cosine", 0.05, 0.01, True)
+
+
 def test_every_preset_sizes_file_is_chosen_by_some_experiment():
     chosen = {(group, composed(f"experiment={e}", f"preset={p}").hydra.runtime.choices.get(f"preset_sizes/{group}"))
               for e in EXPERIMENTS if e not in SUITES for p in ("paper", "cpu") for group in ("data", "model")}
