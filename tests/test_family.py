@@ -22,6 +22,7 @@ from deepcurrents.data.augment import AugmentationRanges, augment_mesh, euler_ro
 from deepcurrents.data.family import FamilyDataModule, FamilyError, load_family
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.metrics import point_mesh_distance
+from deepcurrents.experiments.runner import build
 from deepcurrents.geometry import biot_savart, hopf_link
 from deepcurrents.geometry.correspondence import interpolate_loops, resample_loop
 from deepcurrents.geometry.curves import BoundaryError, read_curve_file, write_curve_file
@@ -308,6 +309,30 @@ def test_datamodule_batches_and_model_kwargs(family_dir):
     assert dm.shard(1, 2).tolist() == [1] and dm.shard(0, 2).tolist() == [0, 2]
 
 
+@pytest.mark.parametrize("factor", [1.0, 10.0])
+def test_latent_codes_train_at_their_own_learning_rate(family_dir, tmp_path, factor):
+    cfg = compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + [f"model.latent_lr_factor={factor}"])
+    _, module = build(cfg)
+    opt = module.configure_optimizers()["optimizer"]
+    assert len(opt.param_groups) == (1 if factor == 1.0 else 2)  # the paper's one group stays one group
+    before = {name: p.detach().clone() for name, p in module.named_parameters()}
+    gen = torch.Generator().manual_seed(0)
+    for p in module.parameters():
+        p.grad = torch.randn(p.shape, generator=gen, dtype=p.dtype)
+    opt.step()
+    # Adam's first step moves every element by lr·g/(|g| + eps) ≈ ±lr, whatever the gradient's size
+    lr = cfg.model.optim.lr
+    for name, p in module.named_parameters():
+        moved = (p.detach() - before[name]).abs()
+        expected = lr * factor if name == "family.latents.weight" else lr
+        assert torch.allclose(moved, torch.full_like(moved, expected), rtol=1e-3), name
+
+
+def test_a_latent_learning_rate_factor_must_be_positive(family_dir, tmp_path):
+    with pytest.raises(ConfigError, match=r"model.latent_lr_factor=0 must be positive"):
+        build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.latent_lr_factor=0"]))
+
+
 def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):
     """data.surface_epsilon=ε: the surface loss's offsets ε ~ U[0.995 ε, 1.005 ε] (the paper's 0.02 gives its
     U[0.0199, 0.0201]); a range [min, max] (a list from the config) gives each sample a step of it; they reach the
@@ -476,6 +501,20 @@ def test_resuming_with_another_family_is_one_sentence(trained, tmp_path):
     cfg = compose_cfg(tiny_overrides(tmp_path, tmp_path / "run", STEPS + 10) + [resume])
     # checked before training (models.loading.check_resumable), naming the setting that differs
     with pytest.raises(UserInputError, match="was trained with data.path=.*but this run has data.path="):
+        train(cfg, out_dir=tmp_path / "run")
+    assert not (tmp_path / "run" / "checkpoints").exists()
+
+
+@pytest.mark.slow
+def test_resuming_with_the_codes_at_another_rate_group_is_one_sentence(trained, tmp_path):
+    from deepcurrents.errors import UserInputError
+    from deepcurrents.experiments.runner import train
+
+    out, _, _ = trained
+    resume = f"ckpt_path={out / 'checkpoints' / 'last.ckpt'}"
+    cfg = compose_cfg(tiny_overrides(trained_dir(out), tmp_path / "run", STEPS + 10)
+                      + [resume, "model.latent_lr_factor=10"])
+    with pytest.raises(UserInputError, match="trained with 1 learning-rate group.* but this run's config makes 2"):
         train(cfg, out_dir=tmp_path / "run")
     assert not (tmp_path / "run" / "checkpoints").exists()
 

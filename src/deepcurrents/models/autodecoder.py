@@ -58,6 +58,8 @@ class AutodecoderModule(DeepCurrentsModule):
         rff: the decoder's random Fourier features (num_frequencies, sigma, enabled, seed).
         optim: {"lr", "step_size", "gamma"}.
         latent_dim, boundary_dim, latent_std: sizes of z and z_Γ (paper 256, 256) and the codes' initial std.
+        latent_lr_factor: the latent codes train at this multiple of ``optim.lr`` (beyond the paper, which has one
+            rate; 1 = the paper). A code sees only its own shape's batches, the decoder every batch.
         surface_weight, surface_margin: weight and δ of the surface hinge loss (paper: 1, 0.01).
         mass_weight: λ of a Euclidean mass term on the training shapes, λ E_x|ω(x)| (B = I) at the same uniform
             samples as the current loss (beyond the paper; 0 = the paper). The reconstruction metric
@@ -98,6 +100,7 @@ class AutodecoderModule(DeepCurrentsModule):
         latent_dim: int = 256,
         boundary_dim: int = 256,
         latent_std: float = 0.1,
+        latent_lr_factor: float = 1.0,
         surface_weight: float = 1.0,
         surface_margin: float = 0.01,
         mass_weight: float = 0.0,
@@ -122,6 +125,8 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.surface_weight={surface_weight} must be non-negative.")
         if not interpolation_weight >= 0:
             raise ConfigError(f"model.interpolation_weight={interpolation_weight} must be non-negative.")
+        if not latent_lr_factor > 0:
+            raise ConfigError(f"model.latent_lr_factor={latent_lr_factor} must be positive.")
         if not mass_weight >= 0:
             raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
         if interpolation_mix not in INTERPOLATION_MIXES:
@@ -146,6 +151,15 @@ class AutodecoderModule(DeepCurrentsModule):
                     self.train_loops[i, b, : len(lp)] = torch.as_tensor(np.asarray(lp), dtype=torch.float32)
         if train_bounds is not None:
             self.train_bounds.copy_(torch.as_tensor(np.asarray(train_bounds), dtype=torch.float32))
+
+    def parameter_groups(self, lr: float) -> list[dict]:
+        """The latent codes at ``latent_lr_factor`` × lr, everything else at lr (one group at the paper's 1)."""
+        factor = float(self.hparams.latent_lr_factor)
+        if factor == 1.0:
+            return super().parameter_groups(lr)
+        codes = self.family.latents.weight
+        rest = [p for p in self.parameters() if p is not codes]
+        return [{"params": rest}, {"params": [codes], "lr": lr * factor}]
 
     # ----------------------------------------------------------------------------------------- shapes
     @property
