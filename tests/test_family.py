@@ -103,6 +103,7 @@ def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
         "model.optim.lr=2e-3", f"model.optim.step_size={steps}", "evaluation.ucd_samples=4000",
         "evaluation.mesh.resolution=40", f"callbacks.model_checkpoint.every_n_train_steps={steps}",
         "callbacks.media=null", "model.rff.sigma=2", "model.surface_margin=0.01",
+        "model.optim.schedule=step", "model.latent_lr_factor=1",
     ]
 
 
@@ -430,10 +431,14 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
             # scalings left the hands blobs in the CPU's steps), δ = 0.005, σ = 4, meshed in a cube that holds bulges
             assert cpu.data.augment and cpu.data.rotation_deg == 0 and cpu.data.shift == 0
             assert list(cpu.data.scale_range) == [1, 1] and list(cpu.data.mesh_scale_range) == [0.7, 1.43]
-            assert cpu.model.surface_margin == 0.005 and cpu.model.rff.sigma == 4
+            assert cpu.model.surface_margin == 0.005 and cpu.model.rff.sigma == 3
+            # README "σ = 3, slow codes and the cosine"
+            assert cpu.model.latent_lr_factor == 0.1 and cpu.model.optim.schedule == "cosine"
+            assert (cpu.model.optim.warmup, cpu.model.optim.min_factor) == (0.02, 0.01)
             assert cpu.evaluation.mesh.padding == 0.5 and cpu.evaluation.mesh.resolution == 80
         else:  # heads keep the former CPU settings, which were better on them (README "Heads with ...")
             assert not cpu.data.augment and cpu.model.surface_margin == 0.01 and cpu.model.rff.sigma == 2
+            assert cpu.model.latent_lr_factor == 1 and cpu.model.optim.schedule == "step"
             assert cpu.evaluation.mesh.padding == 0.1 and cpu.evaluation.mesh.resolution == 64
             assert cpu.data.path.endswith("anny/heads")
 
