@@ -56,7 +56,7 @@ class AutodecoderModule(DeepCurrentsModule):
         num_shapes, num_loops, shape_names: the family (from ``FamilyDataModule.model_kwargs``).
         net: decoder settings (width, depth, activation, alpha_scale, zero_init_output).
         rff: the decoder's random Fourier features (num_frequencies, sigma, enabled, seed).
-        optim: {"lr", "step_size", "gamma"}.
+        optim: {"lr", "step_size", "gamma", "schedule", "warmup", "min_factor", "fused"} (``DeepCurrentsModule``).
         latent_dim, boundary_dim, latent_std: sizes of z and z_Γ (paper 256, 256) and the codes' initial std.
         latent_lr_factor: the latent codes train at this multiple of ``optim.lr`` (beyond the paper, which has one
             rate; 1 = the paper). A code sees only its own shape's batches, the decoder every batch.

@@ -190,16 +190,15 @@ def check_resumable(ckpt_path: str | Path, module: DeepCurrentsModule) -> dict[s
                 f"builds ('{name}' differs: model.net / model.rff / model.* sizes are not the ones it was "
                 "trained with)."
             )
+    # Adam's state is per parameter group: a different count would be refused deep inside Lightning's restore
     states = ckpt.get("optimizer_states")
-    saved_groups = states[0].get("param_groups") if isinstance(states, list) and states and \
-        isinstance(states[0], dict) else None
-    own_groups = module.parameter_groups(1.0)
+    saved = states[0] if isinstance(states, list) and states and isinstance(states[0], dict) else {}
+    saved_groups, own_groups = saved.get("param_groups"), module.parameter_groups(1.0)
     if isinstance(saved_groups, list) and len(saved_groups) != len(own_groups):
-        # Adam's state is per group: torch would refuse it deep inside Lightning's restore
         raise CheckpointError(
             f"ckpt_path='{ckpt_path}' was trained with {len(saved_groups)} learning-rate group(s) but this run's "
-            f"config makes {len(own_groups)} (model.latent_lr_factor or model.grid_encoding.lr_factor was 1 on "
-            "one side only); resume with the settings it was trained with."
+            f"config makes {len(own_groups)} (model.latent_lr_factor is 1 on one side only); resume with the "
+            "settings it was trained with."
         )
     return ckpt
 
