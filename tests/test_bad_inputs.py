@@ -151,6 +151,8 @@ TRAIN_CASES = [
     ("checkpoint interval zero", overrides("experiment=minimal_trefoil",
                                            "callbacks.model_checkpoint.every_n_train_steps=0"), "every_n_train_steps"),
     ("mesh method unknown", overrides("experiment=minimal_trefoil", "evaluation.mesh.method=marching"), "method"),
+    ("level blend negative", overrides("experiment=latent_hands", "evaluation.mesh.level_blend=-0.1"),
+     r"evaluation\.mesh\.level_blend"),
     ("sampling kind unknown", overrides("experiment=minimal_trefoil", "data.sampling.kind=lucky"), "sampling"),
     ("seed not a number", overrides("experiment=minimal_trefoil", "seed=abc"), "seed"),
     ("grid resolution two", overrides("experiment=minimal_grid", "model.grid.resolution=2"), "resolution"),

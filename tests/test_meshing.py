@@ -129,6 +129,34 @@ def test_a_new_meshing_method_is_one_class(monkeypatch):
         extract_surface(disk, method="nope")
 
 
+
+class PinholedPlane(PlaneMethod):
+    """The plane, with the one face whose centroid is nearest the disk's centre failing the carrying test (as
+    a lone face under δ does inside a trained surface)."""
+
+    name = "pinholed_plane"
+
+    def keep_carrying(self, centroids, omega, min_alignment):
+        keep = torch.ones(len(centroids), dtype=torch.bool)
+        keep[centroids.norm(dim=-1).argmin()] = False
+        return keep
+
+
+def test_a_face_dropped_inside_the_surface_leaves_no_pinhole(monkeypatch):
+    """A lone dropped face would leave a hole of three edges, which boundary_error reads as a tear (its
+    distance from Γ): the mesh is the whole polygon Γ spans, its only border Γ."""
+    from test_render import AnalyticDisk
+
+    monkeypatch.setitem(METHODS, "pinholed_plane", PinholedPlane)
+    n = PlaneMethod.normal.double().numpy()
+    disk = AnalyticDisk(radius=0.5, normal=tuple(n))
+    gamma = disk.loops[0].double().numpy()
+    mesh = extract_surface(disk, resolution=40, method="pinholed_plane").mesh
+    polygon_area = 0.5 * np.linalg.norm(np.cross(gamma, np.roll(gamma, -1, 0)).sum(0))
+    assert abs(mesh.area - polygon_area) < 1e-6 * polygon_area
+    assert boundary_error(mesh, [gamma]) < 1e-6 and len(mesh_boundary_loops(mesh.vertices, mesh.faces)) == 1
+    assert mesh.is_winding_consistent and (mesh.face_normals @ n > 0.999).all()
+
 # --- a cap across the opening: two cut border loops along one loop of Γ (reconstructions' wrists and necks) ---
 
 def revolve(profile, n=128):
@@ -402,3 +430,62 @@ def test_the_phase_sums_the_solid_angle_in_float64():
     assert float((phase - exact).abs().max()) < 1e-9
     single = f.double() / 2e-3 + 0.5 * solid_angle(x, loops).double()
     assert float((single - exact).abs().max()) > 1e-6  # float32 would not pass the line above
+
+
+class TiltedSealedCup(SealedCup):
+    """The sealed cup with f + tilt·cos θ·b, b a Gaussian bump of width 0.15 around the rim: f along Γ runs
+    from s − tilt to s + tilt (s, the mean over Γ, stays the cup's 1/2), so near θ = 0 and π the one level
+    f = s passes about 0.06 off Γ, beyond the tube (a family's wrist whose f varies along it); |tilt·b| < 1/2
+    keeps f = s off the rest of the box."""
+
+    def __init__(self, tilt=0.45, **kwargs):
+        super().__init__(width=0.03, **kwargs)
+        self.tilt = tilt
+
+    def f(self, x):
+        rho = x[:, :2].norm(dim=-1)
+        bump = torch.exp(-((rho - self.radius) ** 2 + x[:, 2] ** 2) / 0.15**2)
+        return super().f(x) + self.tilt * x[:, 0] / rho.clamp_min(1e-6) * bump
+
+
+def test_a_level_that_follows_f_along_gamma_closes_what_one_level_leaves_open():
+    """level_blend = R: the level set reaches Γ where f varies along it, and beyond R + a voxel the mesh is the
+    paper's one-level mesh vertex for vertex; the blended level's offset is f − s on Γ, 0 beyond R and its
+    gradient is its finite difference."""
+    from deepcurrents.eval.meshing.level_set import BoundaryLevelOffset, f_on_boundary
+
+    cup, radius = TiltedSealedCup(), 0.1
+    gamma = cup.loops[0].double().numpy()
+    bounds = np.array([[-0.45, -0.45, -0.15], [0.45, 0.45, 0.7]])
+    one = extract_surface(cup, resolution=40, bounds=bounds, method="level_set")
+    assert one.zipped_loops == 0 and boundary_error(one.mesh, [gamma]) > 0.04  # the tube cut leaves it open
+    blended = extract_surface(cup, resolution=40, bounds=bounds, method="level_set", level_blend=radius)
+    mesh = blended.mesh
+    assert blended.zipped_loops == 1 and boundary_error(mesh, [gamma]) < 1e-6
+    assert len(mesh.split(only_watertight=False)) == 1 and mesh.is_winding_consistent
+    voxel = 0.9 / 40
+
+    def far(m):  # the cup beyond R + 2 voxels of Γ (not the cap below it, which the one level keeps)
+        d = np.min(np.linalg.norm(m.vertices[:, None] - gamma[None], axis=-1), axis=1)
+        return m.vertices[(d > radius + 2 * voxel) & (m.vertices[:, 2] > 0)]
+
+    a, b = far(one.mesh), far(mesh)
+    assert len(a) > 500 and len(a) == len(b)
+    assert np.abs(np.sort(a, axis=0) - np.sort(b, axis=0)).max() < 1e-9
+
+    points, f_gamma = f_on_boundary(cup, [gamma], 0.005)
+    level = float(f_gamma.mean())
+    assert level == pytest.approx(0.5, abs=1e-3)
+    offset = BoundaryLevelOffset(points, f_gamma, level, radius)
+    on = torch.as_tensor(circle(cup.radius, n=40), dtype=torch.float32)
+    assert torch.allclose(offset(on), cup.f(on) - level, atol=0.01)  # the softmax's average over ±R/4
+    assert (offset(on * (1 + (radius + 1e-3) / cup.radius)) == 0).all() and (offset(on * 3) == 0).all()
+    x = (on * (1 + 0.4 * radius / cup.radius)).double().requires_grad_(True)
+    offset64 = BoundaryLevelOffset(points.double(), f_gamma.double(), level, radius)
+    (grad,) = torch.autograd.grad(offset64(x).sum(), x)
+    h = 1e-6
+    for k in range(3):
+        e = torch.zeros(3, dtype=torch.float64)
+        e[k] = h
+        fd = (offset64(x.detach() + e) - offset64(x.detach() - e)) / (2 * h)
+        assert torch.allclose(grad[:, k], fd, atol=1e-6)

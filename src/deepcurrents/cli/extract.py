@@ -51,6 +51,7 @@ class ExtractConfig:
     min_component: float | None = None  # drop pieces below this fraction of the area (0: off)
     padding: float | None = None  # the meshed box: Γ's bounding box grown by this
     strip_rows: int | None = None  # rows of the strip from the cut border to Γ (None: the run's, else by method)
+    level_blend: float | None = None  # level_set: the level follows f along Γ within this distance (0: one level)
 
 
 register_app("extract", ExtractConfig, __doc__)
@@ -64,7 +65,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     fmt = str(cfg.format).lower().lstrip(".")
     if fmt not in FORMATS:
         raise ConfigError(f"format='{cfg.format}' must be one of {', '.join(FORMATS)}.")
-    for key, lo, hi in (("min_alignment", -1.0, 1.0), ("min_component", 0.0, 1.0), ("padding", 0.0, 1.0)):
+    for key, lo, hi in (("min_alignment", -1.0, 1.0), ("min_component", 0.0, 1.0), ("padding", 0.0, 1.0),
+                        ("level_blend", 0.0, float("inf"))):
         value = cfg.get(key)
         if value is not None and not lo <= value <= hi:
             raise ConfigError(f"{key}={value} must be in [{lo:g}, {hi:g}].")
@@ -79,7 +81,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
                              boundary_tube=cfg.boundary_tube, close_boundary=cfg.close_boundary,
                              newton_steps=cfg.newton_steps, method=cfg.method, min_alignment=cfg.min_alignment,
-                             min_component=cfg.min_component, padding=cfg.padding, strip_rows=cfg.strip_rows)
+                             min_component=cfg.min_component, padding=cfg.padding, strip_rows=cfg.strip_rows,
+                             level_blend=cfg.level_blend)
     result = extract_surface(current, **settings)
     mesh = result.mesh
     stem = f"mesh_r{cfg.resolution}"

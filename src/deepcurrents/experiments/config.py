@@ -85,8 +85,8 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "evaluation.curve.resolution", 8)
     _positive_int(cfg, "callbacks.model_checkpoint.every_n_train_steps")
     for key in ("evaluation.mass_rel_stderr", "evaluation.mesh.delta", "evaluation.mesh.boundary_tube",
-                "evaluation.mesh.padding", "evaluation.sharpened.kappa", "evaluation.sharpened.samples",
-                "evaluation.curve.delta", "evaluation.curve.boundary_tube"):
+                "evaluation.mesh.padding", "evaluation.mesh.level_blend", "evaluation.sharpened.kappa",
+                "evaluation.sharpened.samples", "evaluation.curve.delta", "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
     method = OmegaConf.select(cfg, "evaluation.mesh.method")
     if method is not None and method not in MESH_METHOD_CHOICES:
