@@ -97,3 +97,24 @@ def test_the_framed_cube_holds_every_point_of_a_lopsided_set():
     hi = np.asarray(view.center) + view.radius
     pts = np.vstack([toes, heel])
     assert (pts >= lo).all() and (pts <= hi).all()
+
+
+def test_a_family_picture_draws_each_mesh_above_its_target_framed_and_coloured_alike(tmp_path):
+    """plot_mesh_pairs: a learned mesh and its target as a file has it (faces the other way round: the current's
+    mesh runs against the target's right-hand normal) give the same picture below the titles, the target
+    turned over and framed with the mesh; a third pair in a row of two starts a second row of pairs."""
+    cap = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    cap = trimesh.Trimesh(cap.vertices, cap.faces[cap.triangles_center[:, 2] > 0.05])
+    loops = mesh_boundary_loops(cap.vertices, cap.faces)
+    target = trimesh.Trimesh(cap.vertices, cap.faces[:, ::-1])
+    image = plots.plot_mesh_pairs([cap], [target], [loops], tmp_path / "pair.png", titles=["0: cap"], size=2.0)
+    h = image.shape[0] // 2
+    assert image.shape[1] == h and (tmp_path / "pair.png").is_file()
+    body = slice(h // 4, h)  # below the titles
+    assert np.array_equal(image[:h][body], image[h:][body])
+    assert (image[:h][body, :, :3] < 200).any()  # not blank
+    small = trimesh.Trimesh(cap.vertices * 0.5, cap.faces)
+    image = plots.plot_mesh_pairs([cap, cap, small], [target] * 3, [loops, loops, [lp * 0.5 for lp in loops]],
+                                  tmp_path / "pairs.png", titles=["a", "b", "c"], ncols=2, size=2.0)
+    assert image.shape[0] == 2 * image.shape[1]  # two rows of two pairs: four tiles high, two wide
+    assert (image[2 * h:, h:, :3] == 255).all()  # the second row's second column is blank

@@ -114,6 +114,20 @@ def plot_mesh(
     return _finish(fig, ax, title, path)
 
 
+def _tile(tiles: Sequence[np.ndarray | None], ncols: int, path: str | Path) -> np.ndarray:
+    """Pictures (H, W, 4) laid out row by row, ``ncols`` per row, None a blank; written as a PNG. → the image."""
+    first = next(t for t in tiles if t is not None)
+    h, w = first.shape[:2]
+    nrows = int(np.ceil(len(tiles) / ncols))
+    image = np.full((nrows * h, ncols * w, 4), 255, dtype=np.uint8)
+    for i, tile in enumerate(tiles):
+        if tile is not None:
+            r, c = divmod(i, ncols)
+            image[r * h:(r + 1) * h, c * w:(c + 1) * w] = tile[:h, :w]
+    plt.imsave(path, image)
+    return image
+
+
 def plot_mesh_grid(
     meshes: Sequence[trimesh.Trimesh],
     loops: Sequence[Sequence[np.ndarray]] | None,
@@ -130,19 +144,40 @@ def plot_mesh_grid(
     if n == 0:
         raise ValueError("plot_mesh_grid needs at least one mesh")
     ncols = ncols or int(np.ceil(np.sqrt(n)))
-    tiles = []
-    for i, mesh in enumerate(meshes):
-        fig = plot_mesh(mesh, None if loops is None else list(loops[i]), None,
-                        title=None if titles is None else titles[i], elev=elev, azim=azim, size=size)
-        tiles.append(figure_pixels(fig))
-    h, w = tiles[0].shape[:2]
-    nrows = int(np.ceil(n / ncols))
-    image = np.full((nrows * h, ncols * w, 4), 255, dtype=np.uint8)
-    for i, tile in enumerate(tiles):
-        r, c = divmod(i, ncols)
-        image[r * h:(r + 1) * h, c * w:(c + 1) * w] = tile[:h, :w]
-    plt.imsave(path, image)
-    return image
+    tiles = [figure_pixels(plot_mesh(mesh, None if loops is None else list(loops[i]), None,
+                                     title=None if titles is None else titles[i], elev=elev, azim=azim, size=size))
+             for i, mesh in enumerate(meshes)]
+    return _tile(tiles, ncols, path)
+
+
+def plot_mesh_pairs(
+    meshes: Sequence[trimesh.Trimesh],
+    targets: Sequence[trimesh.Trimesh],
+    loops: Sequence[Sequence[np.ndarray]],
+    path: str | Path,
+    titles: Sequence[str],
+    ncols: int = 6,
+    size: float = 3.0,
+) -> np.ndarray:
+    """Each learned mesh above its target, the two framed alike (one ``mesh_view`` of both and Γ), up to
+    ``ncols`` pairs per row of pairs; Γ (``loops[i]``) drawn on both. The target is drawn with its faces turned
+    over: a current's mesh is oriented along ω, against the right-hand normal of Γ taken from the target's
+    faces, so the colours (the normal's direction) then agree. Writes a PNG at ``path``. → the image."""
+    if not meshes or len(meshes) != len(targets):
+        raise ValueError("plot_mesh_pairs needs as many targets as meshes, at least one")
+    ncols = min(ncols, len(meshes))
+    tiles: list[np.ndarray | None] = []
+    for start in range(0, len(meshes), ncols):
+        top, bottom = [], []
+        for i in range(start, min(start + ncols, len(meshes))):
+            pts = [np.asarray(m.vertices) for m in (meshes[i], targets[i]) if len(m.vertices)] + list(loops[i])
+            view = mesh_view(pts)
+            top.append(figure_pixels(plot_mesh(meshes[i], list(loops[i]), title=titles[i], size=size, view=view)))
+            turned = trimesh.Trimesh(targets[i].vertices, np.asarray(targets[i].faces)[:, ::-1], process=False)
+            bottom.append(figure_pixels(plot_mesh(turned, list(loops[i]), title="target", size=size, view=view)))
+        pad = [None] * (ncols - len(top))
+        tiles += top + pad + bottom + pad
+    return _tile(tiles, ncols, path)
 
 
 def plot_current_2d(

@@ -29,7 +29,7 @@ from deepcurrents.data.targets import SURFACE_EPSILON, MeshTarget, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
-from deepcurrents.eval.plots import plot_mesh_grid
+from deepcurrents.eval.plots import plot_mesh_pairs
 from deepcurrents.losses import current_loss, surface_hinge
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
@@ -406,8 +406,9 @@ class AutodecoderModule(DeepCurrentsModule):
         ``ucd_held_out_mean`` beside ``ucd`` shows generalisation, not memory.
 
         Writes ``meshes/NNN_<name>.ply`` (held out: ``meshes/held_out_NNN_<name>.ply``), ``per_shape.csv``
-        (``split`` = train or held_out), ``meshes.png`` (up to 12 shapes) and ``metrics.json`` (ucd = mean
-        over training shapes, ucd_worst, boundary_error mean / worst, ucd_held_out_mean, ...).
+        (``split`` = train or held_out), ``meshes.png`` (up to 12 shapes, each above its target) and
+        ``metrics.json`` (ucd = mean over training shapes, ucd_worst, boundary_error mean / worst,
+        ucd_held_out_mean, ...).
         ``meshes`` / ``held_out``: the family's ``FamilyMesh`` lists (default: the trainer's DataModule's).
         """
         out_dir = Path(out_dir)
@@ -431,11 +432,12 @@ class AutodecoderModule(DeepCurrentsModule):
         for i in range(count):
             loops = self.shape_loops(i)
             stem = Path(names[i]).stem
-            row, mesh = self.evaluate_member(self.latent(i), loops, self.meshing_bounds([i]), meshes[i].trimesh(),
+            target = meshes[i].trimesh()
+            row, mesh = self.evaluate_member(self.latent(i), loops, self.meshing_bounds([i]), target,
                                              out_dir / "meshes" / f"{i:03d}_{stem}.ply", samples, seed)
             rows.append({"index": i, "name": names[i], "split": "train", **row, "fit_loss_start": None,
                          "fit_loss_end": None})
-            learned.append((mesh, loops, f"{i}: {stem}"))
+            learned.append((mesh, loops, f"{i}: {stem}", target))
             log.info("shape %d (%s): ucd %s", i, names[i], row["ucd"])
         fit = dict(self.hparams.get("latent_fit") or {})
         fit_kwargs = {"boundary_sigma": float(getattr(datamodule, "boundary_sigma", 0.1)),
@@ -455,22 +457,23 @@ class AutodecoderModule(DeepCurrentsModule):
             fit_seconds += time.perf_counter() - start
             stem = Path(shape.name).stem
             box = np.stack([shape.vertices.min(0), shape.vertices.max(0)])
-            row, mesh = self.evaluate_member(z, loops, self.meshing_bounds([], loops, [box]), shape.trimesh(),
+            target = shape.trimesh()
+            row, mesh = self.evaluate_member(z, loops, self.meshing_bounds([], loops, [box]), target,
                                              out_dir / "meshes" / f"held_out_{k:03d}_{stem}.ply", samples, seed)
             tail = max(1, len(history) // 10)  # the loss is noisy (fresh samples): mean of the first / last tenth
             rows.append({"index": k, "name": shape.name, "split": "held_out", **row,
                          "fit_loss_start": float(np.mean(history[:tail])),
                          "fit_loss_end": float(np.mean(history[-tail:]))})
-            learned.append((mesh, loops, f"held out: {stem}"))
+            learned.append((mesh, loops, f"held out: {stem}", target))
             log.info("held-out shape %s: ucd %s (latent fit %d steps)", shape.name, row["ucd"], len(history))
         with open(out_dir / "per_shape.csv", "w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
             writer.writeheader()
             writer.writerows(rows)
-        keep_held = min(len(learned) - count, 6)  # up to 12 pictures, up to 6 of them held-out shapes
+        keep_held = min(len(learned) - count, 4)  # up to 12 shapes, each above its target, up to 4 held out
         shown = learned[:count][:12 - keep_held] + learned[count:count + keep_held]
-        plot_mesh_grid([m for m, _, _ in shown], [lp for _, lp, _ in shown], out_dir / "meshes.png",
-                       titles=[t for _, _, t in shown])
+        plot_mesh_pairs([m for m, _, _, _ in shown], [t for _, _, _, t in shown], [lp for _, lp, _, _ in shown],
+                        out_dir / "meshes.png", titles=[t for _, _, t, _ in shown])
         train_rows, held_rows = rows[:count], rows[count:]
         ucd = [r["ucd"] for r in train_rows if r["ucd"] is not None]
         be = [r["boundary_error"] for r in train_rows if r["boundary_error"] is not None]
