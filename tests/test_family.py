@@ -436,11 +436,14 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
             assert cpu.model.latent_lr_factor == 0.1 and cpu.model.optim.schedule == "cosine"
             assert (cpu.model.optim.warmup, cpu.model.optim.min_factor) == (0.02, 0.01)
             assert cpu.evaluation.mesh.padding == 0.5 and cpu.evaluation.mesh.resolution == 80
+            assert cpu.evaluation.mesh.level_blend == 0.1  # README "Why wrists were left open"
         else:  # heads keep the former CPU settings, which were better on them (README "Heads with ...")
             assert not cpu.data.augment and cpu.model.surface_margin == 0.01 and cpu.model.rff.sigma == 2
             assert cpu.model.latent_lr_factor == 1 and cpu.model.optim.schedule == "step"
             assert cpu.evaluation.mesh.padding == 0.1 and cpu.evaluation.mesh.resolution == 64
+            assert cpu.evaluation.mesh.level_blend == 0
             assert cpu.data.path.endswith("anny/heads")
+        assert cfg.evaluation.mesh.level_blend == 0  # preset=paper: the paper's one level
 
 
 # --------------------------------------------------------------------------------------------- bad input
