@@ -481,7 +481,7 @@ def test_a_level_that_follows_f_along_gamma_closes_what_one_level_leaves_open():
     assert torch.allclose(offset(on), cup.f(on) - level, atol=0.01)  # the softmax's average over ±R/4
     assert (offset(on * (1 + (radius + 1e-3) / cup.radius)) == 0).all() and (offset(on * 3) == 0).all()
     x = (on * (1 + 0.4 * radius / cup.radius)).double().requires_grad_(True)
-    offset64 = BoundaryLevelOffset(points.double(), f_gamma.double(), level, radius)
+    offset64 = BoundaryLevelOffset(points, f_gamma, level, radius)  # float32 Γ, float64 queries
     (grad,) = torch.autograd.grad(offset64(x).sum(), x)
     h = 1e-6
     for k in range(3):

@@ -48,14 +48,15 @@ class BoundaryLevelOffset:
         """x (N, 3) → offset (N,), differentiable in x; 0 beyond R (only points in Γ's box grown by R are
         measured)."""
         out = torch.zeros(len(x), dtype=x.dtype, device=x.device)
-        near = ((x >= self.box[0]) & (x <= self.box[1])).all(-1).nonzero().squeeze(-1)
+        box, gamma, offset = self.box.to(x), self.gamma.to(x), self.offset.to(x)
+        near = ((x >= box[0]) & (x <= box[1])).all(-1).nonzero().squeeze(-1)
         width2 = 2 * (self.radius / 4) ** 2
         parts = []
         for idx in torch.split(near, chunk_size):
-            d2 = torch.cdist(x[idx], self.gamma).square()
+            d2 = torch.cdist(x[idx], gamma).square()
             u = (d2.min(1).values.clamp_min(1e-24).sqrt() / self.radius).clamp(max=1.0)
             weight = 1 - u * u * (3 - 2 * u)
-            parts.append(weight * (torch.softmax(-d2 / width2, dim=1) * self.offset).sum(1))
+            parts.append(weight * (torch.softmax(-d2 / width2, dim=1) * offset).sum(1))
         if parts:
             out = out.index_put((near,), torch.cat(parts))
         return out
