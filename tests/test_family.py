@@ -650,3 +650,25 @@ def test_grid_summary_counts_a_member_closed_only_when_its_whole_border_is_gamma
     summary = summarise(records)
     assert summary["meshes_closed_on_boundary"] == 1 and summary["empty_meshes"] == 1
     assert summary["boundary_error_max"] == 0.47
+
+
+def test_a_member_closed_on_a_scrap_of_its_shape_counts_as_vanished():
+    """mark_vanished: each member's mesh area over the smaller end shape's; below a quarter (or empty) it is
+    vanished whether or not its border is on Γ (a 0.015 cap across hand 072's wrist against 0.129 for hand 072)."""
+    from deepcurrents.cli.families import mark_vanished, summarise
+
+    loops = [np.zeros((4, 3))]
+    records = [
+        {"boundary_loops_closed": 1, "boundary_error": 0.0, "mesh_area": 0.579, "_loops": loops},
+        {"boundary_loops_closed": 1, "boundary_error": 0.0, "mesh_area": 0.015, "_loops": loops},  # a cap, closed
+        {"boundary_loops_closed": 0, "boundary_error": 0.04, "mesh_area": 0.05, "_loops": loops},   # open, 0.39
+        {"boundary_loops_closed": 0, "boundary_error": None, "mesh_area": 0.0, "_loops": loops},    # empty
+        {"boundary_loops_closed": 1, "boundary_error": 0.0, "mesh_area": 0.129, "_loops": loops},
+    ]
+    mark_vanished(records, [0.579, 0.129])
+    assert [r["vanished"] for r in records] == [False, True, False, True, False]
+    assert records[1]["area_fraction"] == pytest.approx(0.015 / 0.129) and records[4]["area_fraction"] == 1.0
+    summary = summarise(records)
+    assert summary["meshes_vanished"] == 2 and summary["meshes_closed_on_boundary"] == 3
+    assert "meshes_vanished" not in summarise([{k: v for k, v in r.items() if k not in ("vanished", "area_fraction")}
+                                               for r in records])  # generate's reports have no end shapes

@@ -74,6 +74,20 @@ def closed_on_boundary(record: dict[str, Any]) -> bool:
     return bool(zipped) and zipped == len(record["_loops"]) and error is not None and error <= CLOSED_TOLERANCE
 
 
+VANISHED_FRACTION = 0.25  # a member with less than this of the smaller end shape's mesh area is no shape of the family
+
+
+def mark_vanished(records: list[dict[str, Any]], reference_areas: list[float]) -> None:
+    """Adds ``area_fraction`` (mesh area / the smaller of ``reference_areas``, the two end shapes' own meshes) and
+    ``vanished`` (below ``VANISHED_FRACTION``, or empty) to each record in place: a member can be closed on its Γ
+    and still be no hand, a small cap across the wrist (0.015 against 0.13 for the smaller hand, README)."""
+    smaller = float(min(reference_areas)) if reference_areas else 0.0
+    for r in records:
+        area = r.get("mesh_area") if r.get("boundary_error") is not None else 0.0
+        r["area_fraction"] = float(area) / smaller if smaller > 0 and area is not None else None
+        r["vanished"] = bool(r["area_fraction"] is not None and r["area_fraction"] < VANISHED_FRACTION)
+
+
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     errors = [r["boundary_error"] for r in records if r["boundary_error"] is not None]
     crisp = [r["crispness"] for r in records if r.get("crispness") is not None]
@@ -88,6 +102,8 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
         "sheet_flux_mean": float(np.mean(flux)) if flux else None,
         "sheet_flux_min": float(np.min(flux)) if flux else None,
         "meshes_closed_on_boundary": sum(closed_on_boundary(r) for r in records),
+        **({"meshes_vanished": sum(bool(r["vanished"]) for r in records)} if records and "vanished" in records[0]
+           else {}),
     }
 
 

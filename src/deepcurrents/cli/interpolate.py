@@ -13,7 +13,9 @@ Writes, into ``out_dir`` (default: ``<run>/checkpoints/last/interpolation_<mode>
 one mesh ``.ply`` and its boundary ``.obj`` per interpolant, ``interpolation.png`` (the grid of pictures)
 and ``interpolation.json`` with each interpolant's ``boundary_error`` (Hausdorff distance between the
 mesh's border and the prescribed Γ: the boundary is the handle, so this is what to watch) and its
-``crispness`` = mass_area / mesh_area (≈ 1 for a clean sheet, larger for fog; ``mass_samples=0`` skips it).
+``crispness`` = mass_area / mesh_area (≈ 1 for a clean sheet, larger for fog; ``mass_samples=0`` skips it),
+``area_fraction`` (its mesh area over the smaller of the two end shapes', each under its own code and boundary) and
+``vanished`` (below 1/4: closed on Γ or not, no shape of the family), counted in ``meshes_vanished``.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ import numpy as np
 from omegaconf import MISSING, DictConfig
 
 from deepcurrents.cli.common import register_app, run_app
-from deepcurrents.cli.families import app_out_dir, load_for_app, mesh_and_measure, write_outputs
+from deepcurrents.cli.families import app_out_dir, load_for_app, mark_vanished, mesh_and_measure, write_outputs
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.geometry.correspondence import interpolate_loops
 
@@ -94,10 +96,22 @@ def interpolate(cfg: DictConfig) -> dict[str, Any]:
                     "title": title})
         log.info("%s: boundary_error %s", stem, rec["boundary_error"])
         records.append(rec)
+    # the two end shapes under their own code and boundary, meshed in the same cube: what a member's area is
+    # compared with (``vanished``)
+    corners = (records[0], records[-1]) if mode == "grid" else (None, None)
+    reference = []
+    for corner, index, end_loops in zip(corners, (a, b), (loops_a, loops_b), strict=True):
+        if corner is None or corner["boundary_error"] is None:
+            member = module.member(module.latent(index), end_loops)
+            reference.append(module.mesh_member(member, module.meshing_bounds([a, b], end_loops)).mesh.area)
+        else:
+            reference.append(corner["mesh_area"])
+    mark_vanished(records, reference)
     info = {"mode": mode, "a": a, "b": b, "a_name": names[a], "b_name": names[b], "steps": int(cfg.steps),
             "hold": str(cfg.hold), "ckpt_path": str(cfg.ckpt_path)}
     report = write_outputs(out_dir, records, info, len(ts), "interpolation.png", "interpolation.json")
-    print(f"wrote {len(records)} meshes, interpolation.png and interpolation.json to {out_dir}")
+    print(f"wrote {len(records)} meshes, interpolation.png and interpolation.json to {out_dir}"
+          f" ({report['meshes_closed_on_boundary']} closed on Γ, {report['meshes_vanished']} vanished)")
     return report
 
 

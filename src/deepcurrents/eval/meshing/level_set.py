@@ -7,11 +7,11 @@ level set also holds a "complementary" spanning surface where ∇f cancels α; t
 cos(ω, ∇f) ≥ ``min_alignment``.
 
 One level assumes f is about constant along Γ. A trained f need not be: on a family's wrist f varied along Γ
-by nearly its whole jump, so near part of Γ the level set f = s stayed clear of the curve and its cut border (at the tube)
-did not run around Γ to be zipped. With ``level_blend`` = R > 0 (beyond the paper) the level follows f along Γ
-near it: s(x) = s + w(d)·Σ_j k_j(x)(f(γ_j) − s), d the distance to Γ, w a smoothstep from 1 on Γ to 0 at R,
-k_j a softmax of −|x − γ_j|²/2(R/4)² over points γ_j of Γ (continuous everywhere, unlike the nearest point,
-which jumps across a loop's middle). Beyond R it is the paper's level.
+by nearly its whole jump, so near part of Γ the level set f = s stayed clear of the curve and its cut border
+(at the tube) did not run around Γ to be zipped. With ``level_blend`` = R > 0 (beyond the paper) the level
+follows f along Γ near it: s(x) = s + w(d)·Σ_j k_j(x)(f(γ_j) − s), d the distance to Γ, w a smoothstep from 1
+on Γ to 0 at R, k_j a softmax of −|x − γ_j|²/2(R/4)² over points γ_j of Γ (continuous everywhere, unlike the
+nearest point, which jumps across a loop's middle). Beyond R it is the paper's level.
 """
 
 from __future__ import annotations
