@@ -96,16 +96,14 @@ def interpolate(cfg: DictConfig) -> dict[str, Any]:
                     "title": title})
         log.info("%s: boundary_error %s", stem, rec["boundary_error"])
         records.append(rec)
-    # the two end shapes under their own code and boundary, meshed in the same cube: what a member's area is
-    # compared with (``vanished``)
-    corners = (records[0], records[-1]) if mode == "grid" else (None, None)
-    reference = []
-    for corner, index, end_loops in zip(corners, (a, b), (loops_a, loops_b), strict=True):
-        if corner is None or corner["boundary_error"] is None:
-            member = module.member(module.latent(index), end_loops)
-            reference.append(module.mesh_member(member, module.meshing_bounds([a, b], end_loops)).mesh.area)
-        else:
-            reference.append(corner["mesh_area"])
+    # what a member's area is compared with (``vanished``): the two end shapes under their own code and boundary,
+    # meshed in the same cube; a grid's corners (0, 0) and (1, 1) are those meshes already
+    if mode == "grid":
+        reference = [records[0]["mesh_area"], records[-1]["mesh_area"]]
+    else:
+        ends = [(module.member(module.latent(i), lp), module.meshing_bounds([a, b], lp))
+                for i, lp in ((a, loops_a), (b, loops_b))]
+        reference = [module.mesh_member(member, box).mesh.area for member, box in ends]
     mark_vanished(records, reference)
     info = {"mode": mode, "a": a, "b": b, "a_name": names[a], "b_name": names[b], "steps": int(cfg.steps),
             "hold": str(cfg.hold), "ckpt_path": str(cfg.ckpt_path)}
