@@ -423,7 +423,10 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         assert cfg.model.latent_dim == 256 and cfg.model.boundary_dim == 256 and cfg.model.latent_std == 0.1
         assert cfg.model.rff.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.surface_weight == 1
         cpu = compose_cfg([f"experiment={name}", "preset=cpu", "trainer=ddp_cpu"])
-        assert cpu.data.max_meshes == 4 and cpu.trainer.max_steps == 1500 and cpu.model.net.width == 128
+        assert cpu.data.max_meshes == 4 and cpu.model.net.width == 128
+        # README "Half the points, twice the steps": hands 3000 steps of 256 + 256 points, heads 1500 of 512 + 512
+        steps, points = (3000, 256) if name == "latent_hands" else (1500, 512)
+        assert cpu.trainer.max_steps == steps and cpu.data.num_samples == cpu.data.num_surface_samples == points
         assert cfg.evaluation.mesh.padding == 0.1
         assert cpu.trainer.strategy == "ddp" and cpu.trainer.devices == 2
         if name == "latent_hands":
