@@ -102,6 +102,27 @@ def test_latent_fit_moves_only_z_and_lowers_the_loss():
     assert np.all(np.isfinite(ranged)) and ranged != paper
 
 
+def test_latent_fit_prior_holds_the_code_near_the_training_codes():
+    """``prior_weight`` w adds w·|z − μ|²/s²: a strong prior keeps z near the training codes' mean μ where the
+    plain fit moves away, and the recorded history is the training losses alone (equal at the first step, where
+    z = μ and both fits draw the same samples)."""
+    module = small_module()
+    mesh = disc_mesh(lambda x, y: 1.0 * (x**2 - 0.5 * y**2), radius=0.25)  # not a training shape
+    loops = [mesh.vertices[-24:]]
+    codes = module.family.latents.weight.detach()
+    mean = codes.mean(0)
+    spread = float(((codes - mean) ** 2).sum(1).mean())
+    kwargs = {"steps": 40, "lr": 0.05, "num_samples": 256, "num_surface_samples": 128, "seed": 3}
+    free, free_history = module.fit_latent(mesh.vertices, mesh.faces, loops, **kwargs)
+    held, held_history = module.fit_latent(mesh.vertices, mesh.faces, loops, prior_weight=1e3, **kwargs)
+    assert float((free - mean).norm()) > 0.5 * spread**0.5  # the plain fit leaves the codes' mean
+    assert float((held - mean).norm()) < 0.2 * float((free - mean).norm())
+    # the first step of each fit sees the same samples at z = μ, where the prior's gradient is zero: same losses
+    assert held_history[0] == pytest.approx(free_history[0], rel=1e-6)
+    with pytest.raises(ConfigError, match="model.latent_fit.prior_weight=-1"):
+        AutodecoderModule(**{**module.hparams, "latent_fit": {"prior_weight": -1.0}})
+
+
 def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
     """Two copies of one shape: every interpolant is that shape, so the term is E_x|ω(x)| (B = I) of its
     current at the same uniform points, computed here through the single-member view."""

@@ -77,8 +77,8 @@ class AutodecoderModule(DeepCurrentsModule):
             Gaussians of σ around the batch's surface samples of the pair's two shapes, with the importance
             weights 1/q that keep the loss an unbiased estimate of the mass (``data.sampling.NearTargetSampler``).
             A hand fills ~0.1 % of U, so uniform points almost never fall where an interpolant's fog lies.
-        latent_fit: {"steps", "lr", "num_samples", "num_surface_samples"} of ``fit_latent`` for the shapes held
-            out of training (``data.held_out``).
+        latent_fit: {"steps", "lr", "num_samples", "num_surface_samples", "prior_weight"} of ``fit_latent`` for
+            the shapes held out of training (``data.held_out``).
         evaluation: the run's `evaluation` node: {"mesh": extract_surface kwargs (its "padding" sizes the meshed
             cube), "ucd_samples", "seed", "max_shapes"}.
         loop_lengths: (S, B) vertex counts of the training loops (stored; sizes the buffers on reload).
@@ -129,6 +129,8 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.latent_lr_factor={latent_lr_factor} must be positive.")
         if not mass_weight >= 0:
             raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
+        if not float((latent_fit or {}).get("prior_weight", 0.0)) >= 0:  # refused before training, not at its end
+            raise ConfigError(f"model.latent_fit.prior_weight={latent_fit['prior_weight']} must be zero or positive.")
         if interpolation_mix not in INTERPOLATION_MIXES:
             raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
                               f"{', '.join(INTERPOLATION_MIXES)}.")
@@ -220,23 +222,30 @@ class AutodecoderModule(DeepCurrentsModule):
                    lr: float = 1e-2, num_samples: int = 2000, num_surface_samples: int = 2000,
                    boundary_sigma: float = 0.1, boundary_weighting: bool = True, seed: int = 0,
                    metric_band: float | None = None, sampling: dict | None = None,
-                   surface_epsilon: float | tuple[float, float] = SURFACE_EPSILON) -> tuple[torch.Tensor, list[float]]:
+                   surface_epsilon: float | tuple[float, float] = SURFACE_EPSILON,
+                   prior_weight: float = 0.0) -> tuple[torch.Tensor, list[float]]:
         """The autodecoder's test-time step: the latent code of a shape not trained on, by Adam on z alone
         with the training losses (current loss under B_x and surface loss on the unaugmented mesh, fresh
         samples every step); the decoder, the encoders and the training codes stay frozen. z starts at
-        the mean training code.
+        the mean training code μ. ``prior_weight`` w > 0 adds w·|z − μ|²/s², s² the training codes' mean
+        squared distance from μ (a Gaussian prior on codes, as DeepSDF's test-time fit): the decoder has
+        seen nothing far from its codes, and a code that wanders there can fit the losses with a wrong shape.
 
         vertices (V, 3), faces (F, 3): the shape; loops: its B loops (M_b, 3) in the family's loop order.
         → (z (latent_dim,), the loss at each step (S,))."""
         steps = positive_int("model.latent_fit.steps", steps)
         if not lr > 0:
             raise ConfigError(f"model.latent_fit.lr={lr} must be positive.")
+        if not prior_weight >= 0:
+            raise ConfigError(f"model.latent_fit.prior_weight={prior_weight} must be zero or positive.")
         loops = [np.asarray(lp, np.float64) for lp in loops]
         target = MeshTarget(vertices, faces, loops)
         ambient = ambient_sampler(target, ambient_options(sampling), seed=int(seed))
         gen = torch.Generator().manual_seed(int(seed))
         weight = self.family.latents.weight
-        z = weight.detach().mean(0, keepdim=True).clone().requires_grad_(True)  # (1, latent_dim)
+        mean = weight.detach().mean(0, keepdim=True)  # (1, latent_dim)
+        spread = float(((weight.detach() - mean) ** 2).sum(1).mean()) or 1.0  # s²; one training code: 1
+        z = mean.clone().requires_grad_(True)
         opt = torch.optim.Adam([z], lr=float(lr))
         frozen = [(q, q.requires_grad) for q in self.family.parameters()]
         was_training, history = self.training, []
@@ -252,10 +261,11 @@ class AutodecoderModule(DeepCurrentsModule):
                     item["index"], item["loops"] = 0, loops
                     batch = {k: v.to(weight.device) for k, v in collate_shapes([item]).items()}
                     loss = self.compute_losses(batch, z)["loss"]
+                    prior = prior_weight * ((z - mean) ** 2).sum() / spread if prior_weight > 0 else 0.0
                     opt.zero_grad(set_to_none=True)
-                    loss.backward()
+                    (loss + prior).backward()
                     opt.step()
-                    history.append(float(loss.detach()))
+                    history.append(float(loss.detach()))  # the training losses alone, as without a prior
         finally:
             for q, flag in frozen:
                 q.requires_grad_(flag)
@@ -453,6 +463,7 @@ class AutodecoderModule(DeepCurrentsModule):
                                          lr=float(fit.get("lr", 1e-2)),
                                          num_samples=int(fit.get("num_samples", 2000)),
                                          num_surface_samples=int(fit.get("num_surface_samples", 2000)),
+                                         prior_weight=float(fit.get("prior_weight", 0.0)),
                                          seed=seed + k, **fit_kwargs)
             fit_seconds += time.perf_counter() - start
             stem = Path(shape.name).stem
