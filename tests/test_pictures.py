@@ -99,6 +99,37 @@ def test_the_framed_cube_holds_every_point_of_a_lopsided_set():
     assert (pts >= lo).all() and (pts <= hi).all()
 
 
+def test_a_shape_along_the_view_diagonal_stays_inside_the_picture():
+    """A long rod from one corner of its framing cube towards the opposite one: at the fixed ×1.6 zoom its ends
+    projected outside the axes' frame, where matplotlib cuts them off (a generated hand's wrist cap was cut so);
+    ``mesh_view`` now chooses the zoom from the framed points' projected extent (one zoom for all the pictures
+    that share the view), so every vertex projects inside the frame, while a compact shape keeps the full zoom."""
+    from mpl_toolkits.mplot3d import proj3d
+
+    def outside(fig, points):
+        ax = fig.axes[0]
+        xs, ys, _ = proj3d.proj_transform(points[:, 0], points[:, 1], points[:, 2], ax.get_proj())
+        (x0, y0), (x1, y1) = ax.viewLim.get_points()
+        return int(((xs < x0) | (xs > x1) | (ys < y0) | (ys > y1)).sum())
+
+    for direction in ([1.0, 1.0, 1.0], [1.0, -1.0, 1.0], [-1.0, 1.0, 1.0], [1.0, 1.0, -1.0]):
+        ends = np.array([direction, [-c for c in direction]])
+        rod = trimesh.creation.cylinder(radius=0.08, segment=ends)
+        fig = plots.plot_mesh(rod, None, None)
+        assert outside(fig, np.asarray(rod.vertices)) == 0, direction
+        plt.close(fig)
+    fig = plots.plot_mesh(rod, None, None)  # the fixed zoom, as before, for contrast: the rod's ends overrun
+    fig.axes[0].set_box_aspect((1, 1, 1), zoom=plots.FRAME_ZOOM)
+    overrun = outside(fig, np.asarray(rod.vertices))
+    plt.close(fig)
+    blob = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
+    fig = plots.plot_mesh(blob, None, None)
+    ax = fig.axes[0]
+    assert plots.fitting_zoom(ax, np.asarray(blob.vertices)) == plots.FRAME_ZOOM  # a compact shape: the full zoom
+    plt.close(fig)
+    assert overrun > 0
+
+
 def test_a_family_picture_draws_each_mesh_above_its_target_framed_and_coloured_alike(tmp_path):
     """plot_mesh_pairs: a learned mesh and its target as a file has it (faces the other way round: the current's
     mesh runs against the target's right-hand normal) give the same picture below the titles, the target

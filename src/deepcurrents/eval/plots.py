@@ -4,15 +4,17 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
+import matplotlib.figure  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
+from mpl_toolkits.mplot3d import proj3d  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
 
@@ -53,6 +55,7 @@ class MeshView:
     azim: float = 35.0
     center: tuple[float, float, float] = (0.0, 0.0, 0.0)
     radius: float = 1.0
+    zoom: float = 1.6  # of the hidden axes cube (``FRAME_ZOOM``, or less so that the framed points fit)
 
 
 def mesh_view(points: Sequence[np.ndarray], elev: float = 25.0, azim: float = 35.0, margin: float = 1.0) -> MeshView:
@@ -65,7 +68,20 @@ def mesh_view(points: Sequence[np.ndarray], elev: float = 25.0, azim: float = 35
         return MeshView(elev, azim)
     low, high = pts.min(0), pts.max(0)
     radius = 0.55 * float((high - low).max()) * margin
-    return MeshView(float(elev), float(azim), tuple(float(c) for c in 0.5 * (low + high)), radius)
+    view = MeshView(float(elev), float(azim), tuple(float(c) for c in 0.5 * (low + high)), radius)
+    fig = matplotlib.figure.Figure(figsize=(3, 3))  # a throwaway axes with the view, to project the points
+    ax = fig.add_subplot(projection="3d")
+    _frame(ax, view)
+    return replace(view, zoom=fitting_zoom(ax, pts))
+
+
+def _frame(ax, view: MeshView) -> None:
+    """The axes' cube centre ± radius and view direction (not yet the zoom)."""
+    c, r = view.center, view.radius
+    ax.set_xlim(c[0] - r, c[0] + r)
+    ax.set_ylim(c[1] - r, c[1] + r)
+    ax.set_zlim(c[2] - r, c[2] + r)
+    ax.view_init(elev=view.elev, azim=view.azim)
 
 
 def plot_mesh(
@@ -103,15 +119,29 @@ def plot_mesh(
         pts = ([np.asarray(mesh.vertices)] if len(mesh.vertices) else []) + list(loops or [])
         view = mesh_view(pts, elev, azim) if pts else None
     if view is not None:
-        c, r = view.center, view.radius
-        ax.set_xlim(c[0] - r, c[0] + r)
-        ax.set_ylim(c[1] - r, c[1] + r)
-        ax.set_zlim(c[2] - r, c[2] + r)
-        elev, azim = view.elev, view.azim
-    ax.view_init(elev=elev, azim=azim)
-    ax.set_box_aspect((1, 1, 1), zoom=1.6)  # the axes cube is hidden: let the shape fill the frame
+        _frame(ax, view)
+    else:
+        ax.view_init(elev=elev, azim=azim)
+    ax.set_box_aspect((1, 1, 1), zoom=view.zoom if view is not None else FRAME_ZOOM)
     ax.set_axis_off()
     return _finish(fig, ax, title, path)
+
+
+FRAME_ZOOM = 1.6  # the axes cube is hidden: let the shape fill the frame
+
+
+def fitting_zoom(ax, points: np.ndarray, fill: float = 0.92) -> float:
+    """The axes cube's zoom that lets the shape fill the frame: ``FRAME_ZOOM``, or less where the points
+    (N, 3), projected in the axes' view, would overrun ``fill`` of the frame's half-width (a shape along the
+    view's diagonal; projected coordinates scale with the zoom)."""
+    ax.set_box_aspect((1, 1, 1), zoom=1.0)
+    if len(points) > 20000:  # the extent, not every vertex
+        points = points[np.random.default_rng(0).choice(len(points), 20000, replace=False)]
+    xs, ys, _ = proj3d.proj_transform(points[:, 0], points[:, 1], points[:, 2], ax.get_proj())
+    (x0, y0), (x1, y1) = ax.viewLim.get_points()
+    half = 0.5 * min(x1 - x0, y1 - y0)
+    extent = max(np.abs(xs - 0.5 * (x0 + x1)).max(), np.abs(ys - 0.5 * (y0 + y1)).max())
+    return float(min(FRAME_ZOOM, fill * half / extent)) if extent > 0 else FRAME_ZOOM
 
 
 def _tile(tiles: Sequence[np.ndarray | None], ncols: int, path: str | Path) -> np.ndarray:
