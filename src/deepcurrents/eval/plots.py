@@ -46,6 +46,9 @@ def _finish(fig, ax, title: str | None, path: str | Path | None):
     return fig
 
 
+FRAME_ZOOM = 1.6  # the axes cube is hidden: let the shape fill the frame
+
+
 @dataclass(frozen=True)
 class MeshView:
     """What a ``plot_mesh`` picture shows: the view direction (matplotlib's elevation and azimuth in degrees,
@@ -55,7 +58,7 @@ class MeshView:
     azim: float = 35.0
     center: tuple[float, float, float] = (0.0, 0.0, 0.0)
     radius: float = 1.0
-    zoom: float = 1.6  # of the hidden axes cube (``FRAME_ZOOM``, or less so that the framed points fit)
+    zoom: float = FRAME_ZOOM  # of the hidden axes cube (less where the framed points would overrun the frame)
 
 
 def mesh_view(points: Sequence[np.ndarray], elev: float = 25.0, azim: float = 35.0, margin: float = 1.0) -> MeshView:
@@ -125,9 +128,6 @@ def plot_mesh(
     ax.set_box_aspect((1, 1, 1), zoom=view.zoom if view is not None else FRAME_ZOOM)
     ax.set_axis_off()
     return _finish(fig, ax, title, path)
-
-
-FRAME_ZOOM = 1.6  # the axes cube is hidden: let the shape fill the frame
 
 
 def fitting_zoom(ax, points: np.ndarray, fill: float = 0.92) -> float:

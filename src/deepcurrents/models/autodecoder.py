@@ -49,6 +49,25 @@ class CheckpointMismatchError(UserInputError):
     """A checkpoint whose family (shapes, loops) is not the one configured."""
 
 
+LATENT_FIT_DEFAULTS = {"steps": 300, "lr": 1e-2, "num_samples": 2000, "num_surface_samples": 2000, "prior_weight": 0.0}
+
+
+def latent_fit_settings(latent_fit: dict | None) -> dict[str, Any]:
+    """``model.latent_fit`` with its defaults filled in: the keyword arguments of ``fit_latent``'s settings."""
+    return {**LATENT_FIT_DEFAULTS, **dict(latent_fit or {})}
+
+
+def check_latent_fit(steps: Any, lr: Any, num_samples: Any, num_surface_samples: Any, prior_weight: Any) -> int:
+    """One sentence naming the ``model.latent_fit`` setting that is wrong (ConfigError), else the step count."""
+    positive_int("model.latent_fit.num_samples", num_samples)
+    positive_int("model.latent_fit.num_surface_samples", num_surface_samples)
+    if not float(lr) > 0:
+        raise ConfigError(f"model.latent_fit.lr={lr} must be positive.")
+    if not float(prior_weight) >= 0:
+        raise ConfigError(f"model.latent_fit.prior_weight={prior_weight} must be zero or positive.")
+    return positive_int("model.latent_fit.steps", steps)
+
+
 class AutodecoderModule(DeepCurrentsModule):
     """Families of currents: f_θ(x; z_i, Γ_i) for the training shapes i, and any (z, Γ) afterwards.
 
@@ -129,8 +148,7 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.latent_lr_factor={latent_lr_factor} must be positive.")
         if not mass_weight >= 0:
             raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
-        if not float((latent_fit or {}).get("prior_weight", 0.0)) >= 0:  # refused before training, not at its end
-            raise ConfigError(f"model.latent_fit.prior_weight={latent_fit['prior_weight']} must be zero or positive.")
+        check_latent_fit(**latent_fit_settings(latent_fit))  # refused before training, not at its end
         if interpolation_mix not in INTERPOLATION_MIXES:
             raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
                               f"{', '.join(INTERPOLATION_MIXES)}.")
@@ -233,11 +251,8 @@ class AutodecoderModule(DeepCurrentsModule):
 
         vertices (V, 3), faces (F, 3): the shape; loops: its B loops (M_b, 3) in the family's loop order.
         → (z (latent_dim,), the loss at each step (S,))."""
-        steps = positive_int("model.latent_fit.steps", steps)
-        if not lr > 0:
-            raise ConfigError(f"model.latent_fit.lr={lr} must be positive.")
-        if not prior_weight >= 0:
-            raise ConfigError(f"model.latent_fit.prior_weight={prior_weight} must be zero or positive.")
+        steps = check_latent_fit(steps, lr, num_samples, num_surface_samples, prior_weight)
+        prior_weight = float(prior_weight)
         loops = [np.asarray(lp, np.float64) for lp in loops]
         target = MeshTarget(vertices, faces, loops)
         ambient = ambient_sampler(target, ambient_options(sampling), seed=int(seed))
@@ -449,7 +464,7 @@ class AutodecoderModule(DeepCurrentsModule):
                          "fit_loss_end": None})
             learned.append((mesh, loops, f"{i}: {stem}", target))
             log.info("shape %d (%s): ucd %s", i, names[i], row["ucd"])
-        fit = dict(self.hparams.get("latent_fit") or {})
+        fit = latent_fit_settings(self.hparams.get("latent_fit"))
         fit_kwargs = {"boundary_sigma": float(getattr(datamodule, "boundary_sigma", 0.1)),
                       "boundary_weighting": bool(getattr(datamodule, "boundary_weighting", True)),
                       "metric_band": getattr(datamodule, "metric_band", None),
@@ -459,12 +474,7 @@ class AutodecoderModule(DeepCurrentsModule):
         for k, shape in enumerate(held_out):
             loops = shape.loop_points()
             start = time.perf_counter()
-            z, history = self.fit_latent(shape.vertices, shape.faces, loops, steps=int(fit.get("steps", 300)),
-                                         lr=float(fit.get("lr", 1e-2)),
-                                         num_samples=int(fit.get("num_samples", 2000)),
-                                         num_surface_samples=int(fit.get("num_surface_samples", 2000)),
-                                         prior_weight=float(fit.get("prior_weight", 0.0)),
-                                         seed=seed + k, **fit_kwargs)
+            z, history = self.fit_latent(shape.vertices, shape.faces, loops, **fit, seed=seed + k, **fit_kwargs)
             fit_seconds += time.perf_counter() - start
             stem = Path(shape.name).stem
             box = np.stack([shape.vertices.min(0), shape.vertices.max(0)])
