@@ -226,7 +226,8 @@ def step_costs(recipes: dict[str, list[str]], curve: str, rounds: int = 8, steps
 
 def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> dict[str, float]:
     """The final evaluation's parts against training: trains ``steps`` steps, then times the mass estimate
-    (2^20 samples, and stopped at evaluation.mass_rel_stderr) and the phase mesh at evaluation.mesh; the
+    (2^20 plain stratified samples, and as the final evaluation draws it: refined near Γ by
+    evaluation.mass_refine, stopped at evaluation.mass_rel_stderr) and the phase mesh at evaluation.mesh; the
     ratios are to ``reference_steps`` steps at the measured seconds per step (preset=cpu's 3000)."""
     from deepcurrents.eval.meshing import mesh_method
     from deepcurrents.eval.metrics import mass_estimate
@@ -241,9 +242,11 @@ def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> 
     out["mass_2^20_seconds"] = time.perf_counter() - t
     info: dict = {}
     t = time.perf_counter()
-    early = mass_estimate(current, 1 << 20, seed=12345, rel_stderr=float(cfg.evaluation.mass_rel_stderr), info=info)
+    early = mass_estimate(current, 1 << 20, seed=12345, rel_stderr=float(cfg.evaluation.mass_rel_stderr), info=info,
+                          refine=int(cfg.evaluation.mass_refine))
     out["mass_early_seconds"] = time.perf_counter() - t
     out["mass_early_samples"] = info["samples"]
+    out["mass_early_evaluations"] = info["evaluations"]
     out["mass_2^20"], out["mass_early"], out["mass_early_stderr"] = full[0], early[0], early[1]
     t = time.perf_counter()
     opts = mesh_method(dict(cfg.evaluation.mesh), module.mesh_method)

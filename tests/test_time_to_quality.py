@@ -373,3 +373,48 @@ def test_narrow_band_phase_is_the_dense_phase_where_the_mesh_is(curve, scale):
         meshes.append(extract_surface(current, resolution=40, method="phase").mesh)
     assert len(meshes[0].faces) == len(meshes[1].faces)
     assert meshes[0].area == pytest.approx(meshes[1].area, rel=1e-9)
+
+
+class _AxisField(torch.nn.Module):
+    """|ω(x)| = 1/ρ, ρ the distance to the z-axis (Γ: a loop along it): the 1/r singularity of |α| at a curve, whose
+    square has no finite mean. E|ω| over U = [-1, 1]³ is ¼ ∫_{[-1,1]²} dA/ρ = 2 asinh(1)."""
+
+    dim = 3
+    loops = [torch.tensor([[0.0, 0.0, -1.5], [0.0, 0.0, 1.5]])]
+
+    def forward(self, x, create_graph=False):
+        planar = torch.cat([x[:, :2], torch.zeros_like(x[:, :1])], -1)
+        return x[:, 0], planar / planar.pow(2).sum(-1, keepdim=True)
+
+
+def test_mass_estimate_refined_near_the_boundary_is_unbiased_and_tighter():
+    """Cells near Γ split into 3³ sub-cells: over 64 seeds the estimates of E(1/ρ) centre on the exact 2 asinh(1)
+    and miss it by less than half as much as the plain stratified estimate (median absolute error), whose
+    reported error is optimistic for this heavy tail (z-scores' RMS ≈ 2) where the refined one's is nearly
+    honest; every cell that Γ passes through is refined."""
+    import statistics
+
+    from deepcurrents.eval.metrics import boundary_segments, cells_near_boundary, mass_estimate
+
+    exact = 2 * math.asinh(1.0)
+    errors = {1: [], 3: []}
+    z = []
+    for refine, errs in errors.items():
+        for seed in range(64):
+            info: dict = {}
+            mean, err = mass_estimate(_AxisField(), 1 << 12, seed=seed, chunk_size=1 << 12, refine=refine, info=info)
+            errs.append(mean - exact)
+            if refine == 3:
+                z.append((mean - exact) / err)
+        assert info["samples"] == 1 << 12
+        assert (info["evaluations"] == 1 << 12) == (refine == 1)
+    median = {r: statistics.median(abs(e) for e in errs) for r, errs in errors.items()}
+    assert median[3] < 0.5 * median[1]
+    spread = statistics.pstdev(errors[3])
+    assert abs(statistics.mean(errors[3])) < 3 * spread / math.sqrt(64)
+    assert statistics.mean(v * v for v in z) ** 0.5 < 2.5
+    # the 16³ cells whose points lie on the axis are all among the refined ones
+    near = cells_near_boundary(16, 3, boundary_segments(_AxisField()))
+    on_axis = torch.stack(torch.meshgrid(torch.arange(16), torch.arange(16), torch.arange(16), indexing="ij"), -1)
+    on_axis = torch.isin(on_axis.reshape(-1, 3)[:, :2], torch.tensor([7, 8])).all(1)
+    assert bool(near[on_axis].all()) and int(near.sum()) < 16 * 16 * 16 // 8

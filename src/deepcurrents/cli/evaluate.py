@@ -49,7 +49,7 @@ class EvaluateConfig:
     shape: int | None = None  # families: which training shape (default 0)
     resolution: int | None = None  # marching cubes (default: the run's evaluation.mesh.resolution)
     samples: int = 100_000  # uniform samples of each surface for the Chamfer distances
-    mass_samples: int | None = None  # None: the run's evaluation.mass_samples (2^20 by default)
+    mass_samples: int | None = None  # None: the run's evaluation.mass_samples and mass_rel_stderr stop
     seed: int | None = None  # None: the run's evaluation.seed
 
 
@@ -74,7 +74,10 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     evaluation = run_evaluation(module)
     seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
     mass_samples = int(cfg.mass_samples or evaluation.get("mass_samples", 1 << 20))
-    mass, stderr = mass_estimate(current, mass_samples, seed=seed)
+    # the run's early stop too, unless a sample count is given, and its refinement near Γ
+    rel = evaluation.get("mass_rel_stderr") if cfg.mass_samples is None else None
+    mass, stderr = mass_estimate(current, mass_samples, seed=seed, rel_stderr=float(rel) if rel else None,
+                                 refine=int(evaluation.get("mass_refine", 1)))
     scale = mass_to_area(1.0, current.dim, current.alpha_scale)
     name = "area" if current.dim == 3 else "length"
     metrics: dict = {

@@ -11,7 +11,8 @@ import torch
 import trimesh
 
 from deepcurrents.eval.device import device_of
-from deepcurrents.geometry.polyline import closed_loop_segments, polyline_hausdorff
+from deepcurrents.geometry.biot_savart import loop_segments
+from deepcurrents.geometry.polyline import closed_loop_segments, polyline_hausdorff, project_to_segments
 from deepcurrents.geometry.topology import border_edges
 
 
@@ -27,14 +28,24 @@ def mass_to_area(mass: float, dim: int, alpha_scale: float) -> float:
     return mass * 2.0**dim / (jump(dim) * alpha_scale)
 
 
+def _strata(n: int, dim: int) -> int:
+    """K, the largest even number with K^dim ≤ n: the side of the stratified grid of a chunk of n samples."""
+    return int(math.floor(n ** (1.0 / dim) + 1e-9)) // 2 * 2
+
+
+def _cell_corners(k: int, dim: int) -> torch.Tensor:
+    """Integer corners of the k^dim cells in row-major order (neighbouring indices, neighbouring cells). → (k^dim, dim)."""
+    return torch.stack(torch.meshgrid(*[torch.arange(k)] * dim, indexing="ij"), -1).reshape(-1, dim)
+
+
 def stratified_uniform(n: int, dim: int, generator: torch.Generator) -> torch.Tensor:
     """n points of U = [-1, 1]^dim, each uniform over U: one in each cell of a K^dim grid (K the largest even
     number with K^dim ≤ n, cells in row-major order, so that samples 2j and 2j + 1 lie in neighbouring cells)
     and the n − K^dim others uniform over U. → (n, dim) float32 on the CPU."""
     u = torch.rand(n, dim, generator=generator)
-    k = int(math.floor(n ** (1.0 / dim) + 1e-9)) // 2 * 2
+    k = _strata(n, dim)
     if k >= 2:
-        cells = torch.stack(torch.meshgrid(*[torch.arange(k)] * dim, indexing="ij"), -1).reshape(-1, dim)
+        cells = _cell_corners(k, dim)
         u[: len(cells)] = (cells + u[: len(cells)]) / k
     return u * 2.0 - 1.0
 
@@ -43,50 +54,114 @@ def paired_square_sum(values: torch.Tensor) -> float:
     """Σ_j (y_2j − y_2j+1)² over consecutive pairs, scaled to all of values (N,) (odd N: one unpaired): for
     samples in neighbouring strata (``stratified_uniform``) it estimates n² times the variance of their mean
     (collapsed strata: conservative by the squared differences of neighbouring strata's means), for
-    independent samples too (2σ² per pair)."""
-    pairs = len(values) // 2
+    independent samples too (2σ² per pair). values (..., N): the sum of that over the leading rows."""
+    n = values.shape[-1]
+    pairs = n // 2
     if pairs == 0:
         return 0.0
-    diff = values[0 : 2 * pairs : 2] - values[1 : 2 * pairs : 2]
-    return float((diff * diff).sum()) * len(values) / (2 * pairs)
+    diff = values[..., 0 : 2 * pairs : 2] - values[..., 1 : 2 * pairs : 2]
+    return float((diff * diff).sum()) * n / (2 * pairs)
+
+
+def boundary_segments(current) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Γ of a current as segments (starts (S, d), ends (S, d)), float64 on the CPU: its closed loops (3D,
+    ``current.loops``) or its poles as points (2D, ``current.poles``); None if it has neither."""
+    if current.dim == 3 and getattr(current, "loops", None):
+        starts, ends = loop_segments([torch.as_tensor(lp).detach().cpu().double() for lp in current.loops])
+        return starts, ends
+    poles = getattr(current, "poles", None)
+    if current.dim == 2 and poles is not None:
+        poles = poles.detach().cpu().double()
+        return poles, poles
+    return None
+
+
+def cells_near_boundary(k: int, dim: int, segments: tuple[torch.Tensor, torch.Tensor],
+                        reach: float = 2.0) -> torch.Tensor:
+    """Which cells of the k^dim grid over U have their centre within ``reach`` cell sides of Γ (with 2: every
+    cell Γ passes through, whose centre is at most √d/2 sides from it, and a layer or two around them).
+    → (k^dim,) bool."""
+    centres = ((_cell_corners(k, dim).double() + 0.5) / k) * 2.0 - 1.0
+    return project_to_segments(centres, *segments).distance < reach * 2.0 / k
 
 
 @torch.no_grad()
 def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size: int = 1 << 15,
                   metric_fn=None, rel_stderr: float | None = None, min_samples: int = 1 << 16,
-                  info: dict | None = None) -> tuple[float, float]:
+                  info: dict | None = None, refine: int = 1) -> tuple[float, float]:
     """Monte Carlo E_x |B_x ω(x)| over U = [-1, 1]^d and its standard error, in chunks (bounded memory).
 
     Each chunk is stratified (``stratified_uniform``: one sample per cell of a 32³ grid for 2^15 samples in
     3D): every sample is uniform over U and the mean is unbiased as with independent samples, but the
     variance between cells is gone (on the trained make-run trefoil the standard error at 2^20 samples is
     0.69 % of the mean instead of 0.92 %). The standard error is the collapsed-strata estimate
-    (``paired_square_sum``).
+    (``paired_square_sum``) over the cells' values.
+    ``refine`` > 1: the cells near Γ (``cells_near_boundary``, Γ from ``boundary_segments``) are split into
+    refine^d sub-cells with one uniform sample each; the cell's value is their mean and its variance is
+    estimated from pairs of neighbouring sub-cells. Near Γ, |ω| ≈ alpha_scale·|α| ∼ 1/r has no finite variance
+    and dominates the estimate's: on the trained make-run trefoil the 2.8 % of the 32³ cells within two cells
+    of Γ held 97 % of the within-cell variance. Every cell still weighs its volume and every sample is uniform
+    within its (sub-)cell, so the estimate stays unbiased. There, with refine 3, one chunk cost 1.73× the
+    evaluations and its estimates scattered 5× less (standard deviation over 24 seeds 0.0057 against 0.0293
+    in area units); the reported error, conservative by neighbouring cells' differences away from Γ, fell 2.9×.
     ``metric_fn(x) -> B`` (None for B = I) lets reconstruction evaluate its weighted mass the same way.
     ``rel_stderr``: stop early, once at least ``min_samples`` are drawn and stderr / mean ≤ rel_stderr
-    (``num_samples`` is then the most it draws). ``info`` (a dict, if given) receives the number of samples
-    used under "samples".
+    (``num_samples`` is then the most it draws). Samples count cells (the points a plain stratified estimate
+    would draw); ``info`` (a dict, if given) receives their number under "samples" and the points evaluated
+    (refined cells' sub-samples included) under "evaluations".
     """
+    if refine < 1:
+        raise ValueError(f"refine={refine} must be at least 1.")
     dev = device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
-    total, paired, done = 0.0, 0.0, 0
+    segments = boundary_segments(current) if refine > 1 else None
+    near_cells: dict[int, torch.Tensor] = {}  # per grid side k: the refined cells' indices
+    total, paired, done, evaluated = 0.0, 0.0, 0, 0
     while done < num_samples:
         n = min(chunk_size, num_samples - done)
-        x = stratified_uniform(n, current.dim, gen).to(dev)
+        x = stratified_uniform(n, current.dim, gen)
+        k = _strata(n, current.dim)
+        near = None
+        if segments is not None and k >= 2:
+            if k not in near_cells:
+                near_cells[k] = cells_near_boundary(k, current.dim, segments).nonzero().squeeze(1)
+            near = near_cells[k]
+            if len(near) == 0:
+                near = None
+        if near is not None:
+            sub = _cell_corners(refine, current.dim)  # (r^d, d)
+            corners = _cell_corners(k, current.dim)[near]  # (c, d)
+            u = torch.rand(len(near), len(sub), current.dim, generator=gen)
+            fine = ((corners[:, None] + (sub[None] + u) / refine) / k * 2.0 - 1.0).reshape(-1, current.dim)
+            keep = torch.ones(n, dtype=torch.bool)
+            keep[near] = False
+            x = torch.cat([x[keep], fine])
+        x = x.to(dev)
         _, omega = current(x, create_graph=False)
         if metric_fn is not None:
             from deepcurrents.losses import apply_metric
 
             omega = apply_metric(omega, metric_fn(x))
         m = omega.norm(dim=-1).double()
-        total += float(m.sum())
-        paired += paired_square_sum(m)
+        evaluated += len(m)
+        if near is None:
+            total += float(m.sum())
+            paired += paired_square_sum(m)
+        else:
+            # a refined cell's value is its sub-samples' mean, whose variance its own sub-cells estimate (pairs
+            # of neighbouring sub-cells): pairing it with a neighbouring cell instead would count the steep
+            # change of |ω| towards Γ between the two cells as variance
+            kept = n - len(near)
+            sub_values = m[kept:].reshape(len(near), -1)
+            total += float(m[:kept].sum() + sub_values.mean(1).sum())
+            paired += paired_square_sum(m[:kept]) + paired_square_sum(sub_values) / sub_values.shape[1] ** 2
         done += n
         if rel_stderr is not None and done >= min_samples and done < num_samples:
             if math.sqrt(paired) / done <= rel_stderr * abs(total / done):
                 break
     if info is not None:
         info["samples"] = done
+        info["evaluations"] = evaluated
     return total / done, math.sqrt(paired) / done
 
 

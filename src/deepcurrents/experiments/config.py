@@ -80,6 +80,7 @@ def validate_config(cfg: DictConfig) -> None:
         _positive_int(cfg, "torch_threads")
     _positive_int(cfg, "data.num_samples")
     _positive_int(cfg, "evaluation.mass_samples")
+    _positive_int(cfg, "evaluation.mass_refine")
     _positive_int(cfg, "evaluation.mesh.resolution", 8)
     _positive_int(cfg, "evaluation.mesh.strip_rows")
     _positive_int(cfg, "evaluation.curve.resolution", 8)

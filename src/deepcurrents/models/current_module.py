@@ -128,9 +128,11 @@ class CurrentModule(DeepCurrentsModule):
         rel = self.evaluation.get("mass_rel_stderr")  # stop early once the estimate is this precise
         used: dict[str, int] = {}
         mass, stderr = mass_estimate(self.current, samples, seed=int(self.evaluation.get("seed", 12345)),
-                                     rel_stderr=float(rel) if rel else None, info=used)
+                                     rel_stderr=float(rel) if rel else None, info=used,
+                                     refine=int(self.evaluation.get("mass_refine", 1)))
         scale = mass_to_area(1.0, self.dim, self.current.alpha_scale)
-        metrics: dict[str, Any] = {"loss": mass, **self.run_metrics(), "mass_samples": used["samples"]}
+        metrics: dict[str, Any] = {"loss": mass, **self.run_metrics(), "mass_samples": used["samples"],
+                                   "mass_evaluations": used["evaluations"]}
         name = "area" if self.dim == 3 else "length"
         metrics[f"mass_{name}"] = mass * scale
         metrics[f"mass_{name}_stderr"] = stderr * scale
