@@ -34,7 +34,7 @@ def _strata(n: int, dim: int) -> int:
 
 
 def _cell_corners(k: int, dim: int) -> torch.Tensor:
-    """Integer corners of the k^dim cells in row-major order (neighbouring indices, neighbouring cells). → (k^dim, dim)."""
+    """Integer corners of the k^dim cells, row-major (neighbouring indices: neighbouring cells). → (k^dim, dim)"""
     return torch.stack(torch.meshgrid(*[torch.arange(k)] * dim, indexing="ij"), -1).reshape(-1, dim)
 
 
