@@ -8,7 +8,9 @@ configuration measured in the same process (before and after, averaged, so that 
 load hits both); prints one JSON line with the ratios to ``trainer.max_steps`` steps. To compare two trees
 on a shared machine, run it alternately from each (``git worktree add /tmp/old <commit>``, then
 ``PYTHONPATH=/tmp/old/src python benchmarks/final_evaluation_cost.py …``): the ratios, not the seconds, are
-comparable. ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
+comparable. ``--mass-refine 1`` evaluates with the plain mass estimate (``evaluation.mass_refine``),
+``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``).
+``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
 """
 
 from __future__ import annotations
@@ -51,9 +53,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("ckpt")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--mass-refine", type=int, default=None,
+                    help="evaluation.mass_refine for this evaluation (default: the run's; 1 = the plain estimate)")
+    ap.add_argument("--mass-rel-stderr", type=float, default=None,
+                    help="evaluation.mass_rel_stderr for this evaluation (default: the run's)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     module = load_module(args.ckpt)
+    if args.mass_refine is not None:
+        module.evaluation["mass_refine"] = args.mass_refine
+    if args.mass_rel_stderr is not None:
+        module.evaluation["mass_rel_stderr"] = args.mass_rel_stderr
     cfg = OmegaConf.create(module.run_config)
     load = os.getloadavg()[0]
     before = step_seconds(cfg)
@@ -73,8 +83,8 @@ def main() -> None:
         "tree": deepcurrents.__file__.split("/src/")[0], "seconds_per_step": step, "train_seconds": train,
         "evaluation_seconds": evaluation, "render_seconds": rendering,
         "evaluation_per_train": evaluation / train, "with_render_per_train": (evaluation + rendering) / train,
-        **{k: metrics.get(k) for k in ("mass_samples", "mass_area", "mass_area_stderr", "mesh_area",
-                                       "mass_area_sharpened")},
+        **{k: metrics.get(k) for k in ("mass_samples", "mass_evaluations", "mass_area", "mass_area_stderr",
+                                       "mesh_area", "mass_area_sharpened")},
         "load": [load, os.getloadavg()[0]],
     }))
 
