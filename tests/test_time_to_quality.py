@@ -240,6 +240,8 @@ def test_mass_estimate_stops_at_the_requested_precision():
     assert info["samples"] == 1 << 13
     with pytest.raises(ConfigError, match=r"evaluation\.mass_rel_stderr="):
         validate_config(compose_cfg(["evaluation.mass_rel_stderr=-1"]))
+    with pytest.raises(ConfigError, match=r"evaluation\.mass_refine=0 must be a positive integer"):
+        validate_config(compose_cfg(["evaluation.mass_refine=0"]))
 
 
 class _RadialField(torch.nn.Module):
