@@ -30,8 +30,8 @@ DATA_BODIES ?= 100
 data: $(ANNY_STAMP)
 	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
 
-# the quick start: 2000 of preset=cpu's 3000 steps (README "Looking at results": 82-86 s idle, with a
-# mass bound 0.839 against 0.819 and the same mesh); `make run RUN_STEPS=3000` runs the preset's whole budget
+# the quick start: 2000 of preset=cpu's 3000 steps (README "Looking at results": 61-96 s idle, with a
+# mass bound 0.836-0.839 against 0.819 and the same mesh); `make run RUN_STEPS=3000` runs the preset's whole budget
 RUN_STEPS ?= 2000
 run: setup
 	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu trainer.max_steps=$(RUN_STEPS) hydra.run.dir=$(RUN_DIR)
