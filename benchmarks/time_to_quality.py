@@ -230,7 +230,7 @@ def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> 
     evaluation.mass_refine, stopped at evaluation.mass_rel_stderr) and the phase mesh at evaluation.mesh; the
     ratios are to ``reference_steps`` steps at the measured seconds per step (preset=cpu's 3000)."""
     from deepcurrents.eval.meshing import mesh_method
-    from deepcurrents.eval.metrics import mass_estimate
+    from deepcurrents.eval.metrics import mass_estimate, mass_estimate_settings
 
     module, cfg, copies = train_recipe(overrides, 0.0, 1, steps=steps)
     per_step = copies[-1]["train_seconds"] / max(copies[-1]["steps"], 1)
@@ -242,8 +242,8 @@ def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> 
     out["mass_2^20_seconds"] = time.perf_counter() - t
     info: dict = {}
     t = time.perf_counter()
-    early = mass_estimate(current, 1 << 20, seed=12345, rel_stderr=float(cfg.evaluation.mass_rel_stderr), info=info,
-                          refine=int(cfg.evaluation.mass_refine))
+    early = mass_estimate(current, seed=12345, info=info,
+                          **{**mass_estimate_settings(cfg.evaluation), "num_samples": 1 << 20})
     out["mass_early_seconds"] = time.perf_counter() - t
     out["mass_early_samples"] = info["samples"]
     out["mass_early_evaluations"] = info["evaluations"]

@@ -29,6 +29,7 @@ from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import (
     curve_length,
     mass_estimate,
+    mass_estimate_settings,
     mass_to_area,
     mesh_summary,
     unidirectional_chamfer,
@@ -73,11 +74,11 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     # unset sizes and seed from the run's own evaluation settings, so `loss` matches its metrics.json
     evaluation = run_evaluation(module)
     seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
-    mass_samples = int(cfg.mass_samples or evaluation.get("mass_samples", 1 << 20))
-    # the run's early stop too, unless a sample count is given, and its refinement near Γ
-    rel = evaluation.get("mass_rel_stderr") if cfg.mass_samples is None else None
-    mass, stderr = mass_estimate(current, mass_samples, seed=seed, rel_stderr=float(rel) if rel else None,
-                                 refine=int(evaluation.get("mass_refine", 1)))
+    # the run's own estimate (its sample count, early stop and refinement near Γ), or exactly mass_samples
+    settings = mass_estimate_settings(evaluation)
+    if cfg.mass_samples is not None:
+        settings.update(num_samples=int(cfg.mass_samples), rel_stderr=None)
+    mass, stderr = mass_estimate(current, seed=seed, **settings)
     scale = mass_to_area(1.0, current.dim, current.alpha_scale)
     name = "area" if current.dim == 3 else "length"
     metrics: dict = {

@@ -115,22 +115,19 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
     dev = device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
     segments = boundary_segments(current) if refine > 1 else None
-    near_cells: dict[int, torch.Tensor] = {}  # per grid side k: the refined cells' indices
+    refined: dict[int, tuple | None] = {}  # per grid side k, found once: (the refined cells, their corners)
     total, paired, done, evaluated = 0.0, 0.0, 0, 0
     while done < num_samples:
         n = min(chunk_size, num_samples - done)
         x = stratified_uniform(n, current.dim, gen)
         k = _strata(n, current.dim)
+        if segments is not None and k >= 2 and k not in refined:
+            near = cells_near_boundary(k, current.dim, segments).nonzero().squeeze(1)
+            refined[k] = (near, _cell_corners(k, current.dim)[near]) if len(near) else None
         near = None
-        if segments is not None and k >= 2:
-            if k not in near_cells:
-                near_cells[k] = cells_near_boundary(k, current.dim, segments).nonzero().squeeze(1)
-            near = near_cells[k]
-            if len(near) == 0:
-                near = None
-        if near is not None:
+        if refined.get(k) is not None:
+            near, corners = refined[k]
             sub = _cell_corners(refine, current.dim)  # (r^d, d)
-            corners = _cell_corners(k, current.dim)[near]  # (c, d)
             u = torch.rand(len(near), len(sub), current.dim, generator=gen)
             fine = ((corners[:, None] + (sub[None] + u) / refine) / k * 2.0 - 1.0).reshape(-1, current.dim)
             keep = torch.ones(n, dtype=torch.bool)
@@ -163,6 +160,14 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
         info["samples"] = done
         info["evaluations"] = evaluated
     return total / done, math.sqrt(paired) / done
+
+
+def mass_estimate_settings(evaluation: dict) -> dict[str, Any]:
+    """``mass_estimate``'s num_samples, rel_stderr and refine from a run's ``evaluation`` node (a checkpoint
+    written before a key existed gets that key's former behaviour: no stop, no refinement)."""
+    rel = evaluation.get("mass_rel_stderr")
+    return {"num_samples": int(evaluation.get("mass_samples", 1 << 20)), "rel_stderr": float(rel) if rel else None,
+            "refine": int(evaluation.get("mass_refine", 1))}
 
 
 def mesh_border_segments(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method
-from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_to_area
+from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_estimate_settings, mass_to_area
 from deepcurrents.eval.plots import plot_current_2d
 from deepcurrents.losses import current_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
@@ -124,12 +124,9 @@ class CurrentModule(DeepCurrentsModule):
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
         self.current.eval()
-        samples = int(self.evaluation.get("mass_samples", 1 << 20))
-        rel = self.evaluation.get("mass_rel_stderr")  # stop early once the estimate is this precise
         used: dict[str, int] = {}
-        mass, stderr = mass_estimate(self.current, samples, seed=int(self.evaluation.get("seed", 12345)),
-                                     rel_stderr=float(rel) if rel else None, info=used,
-                                     refine=int(self.evaluation.get("mass_refine", 1)))
+        mass, stderr = mass_estimate(self.current, seed=int(self.evaluation.get("seed", 12345)), info=used,
+                                     **mass_estimate_settings(self.evaluation))
         scale = mass_to_area(1.0, self.dim, self.current.alpha_scale)
         metrics: dict[str, Any] = {"loss": mass, **self.run_metrics(), "mass_samples": used["samples"],
                                    "mass_evaluations": used["evaluations"]}
