@@ -106,7 +106,7 @@ def test_training_threads_leave_the_loader_workers_their_cores(monkeypatch):
     assert evaluation_threads(compose_cfg(["torch_threads=auto"])) is None
     assert evaluation_threads(compose_cfg([])) is None
     assert compose_cfg(["experiment=latent_hands", "preset=cpu"]).torch_threads == "auto"
-    assert compose_cfg(["experiment=latent_heads", "preset=cpu"]).torch_threads is None
+    assert compose_cfg(["experiment=latent_heads", "preset=cpu"]).torch_threads == "auto"
     assert compose_cfg(["experiment=recon_hand", "preset=cpu"]).torch_threads is None
     monkeypatch.undo()  # the real setting: changed for the block, torch's choice again after it
     real = torch.get_num_threads()
