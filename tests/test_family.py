@@ -433,8 +433,7 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         assert cfg.evaluation.mesh.padding == 0.1
         assert cpu.trainer.strategy == "ddp" and cpu.trainer.devices == 2
         if name == "latent_hands":
-            # README "Families of surfaces": whole-mesh scaling only (the paper's rotations, shifts and wrist
-            # scalings left the hands blobs in the CPU's steps), δ = 0.005, σ = 4, meshed in a cube that holds bulges
+            # README "Families of surfaces": σ = 3, meshed in a cube that holds bulges
             assert cpu.model.rff.sigma == 3
             # README "σ = 3, slow codes and the cosine"
             assert cpu.model.latent_lr_factor == 0.1 and cpu.model.optim.schedule == "cosine"
