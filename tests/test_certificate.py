@@ -1,7 +1,7 @@
 """The sharpened area bound (eval.certificate) against independent truth: κ = 0 is the plain uniform mass
 bound; on a planar circle the phase mesh of α alone is the flat disk (a level set of the solid angle), so the
 bound concentrated on it must come down from the plain bound (2.3× the disk) to the disk's exact area πR²,
-never below it; the von Mises weight has mean 1 over a turn (quadrature)."""
+never below it (the von Mises map itself: tests/test_phase_map.py)."""
 
 import math
 
@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from deepcurrents.data.sampling import mesh_cell_scores, mesh_sampler
-from deepcurrents.eval.certificate import sharpened_mass_estimate, von_mises_weight
+from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import circle
@@ -26,12 +26,6 @@ def untrained():
     current = NeuralCurrent(3, loops=[torch.tensor(circle(R, n=128)).float()], num_frequencies=8, width=8, depth=1)
     result = extract_surface(current, resolution=40)
     return current, result
-
-
-@pytest.mark.parametrize("kappa", [0.5, 4.0, 30.0])
-def test_von_mises_weight_has_mean_one_over_a_turn(kappa):
-    phase = torch.linspace(0.0, 2.0 * math.pi, 20001, dtype=torch.float64)[:-1]
-    assert float(von_mises_weight(phase, 1.3, kappa).mean()) == pytest.approx(1.0, rel=1e-9)
 
 
 def test_mesh_cells_are_a_distribution_on_the_mesh():

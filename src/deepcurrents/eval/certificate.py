@@ -23,18 +23,12 @@ from __future__ import annotations
 import math
 
 import torch
-from scipy.special import i0e
 
 from deepcurrents.eval.device import device_of
 from deepcurrents.eval.meshing.phase import phase_from_f
 from deepcurrents.eval.metrics import mass_to_area
-
-
-def von_mises_weight(phase: torch.Tensor, level: float, kappa: float) -> torch.Tensor:
-    """ψ'(φ) = exp(κ(cos(φ − level) − 1)) / i0e(κ), mean 1 over a turn of φ. (P,) → (P,) float64."""
-    if kappa == 0.0:
-        return torch.ones_like(phase, dtype=torch.float64)
-    return torch.exp(kappa * (torch.cos(phase.double() - level) - 1.0)) / float(i0e(kappa))
+from deepcurrents.nn.current import level_set_view
+from deepcurrents.nn.phase_map import von_mises_slope
 
 
 @torch.no_grad()
@@ -44,19 +38,21 @@ def sharpened_mass_estimate(current, sampler, level: float, kappa: float = 16.0,
     units as ``mass_to_area``. ``sampler.sample(n)`` → {"x": (n, 3), "weight": (n,)}: samples of [-1, 1]³ with
     the weights vol(U)/(vol(U)·q) that make weighted means unbiased (``data.sampling.mesh_sampler``: mostly in
     the cells around the phase mesh); ``level``: the mesh's phase φ* (the off-surface phase θ + π);
-    ``kappa``: the von Mises concentration (0: the plain bound)."""
+    ``kappa``: the von Mises concentration (0: the plain bound). A sharpened ``NeuralCurrent`` is read through its
+    network's own current (``nn.current.level_set_view``), as the mesher reads it: the level is one of that phase."""
     if current.dim != 3:
         raise ValueError("The sharpened bound is defined for 3D currents (the phase needs the solid angle).")
     dev = device_of(current)
     values, done = [], 0
-    while done < num_samples:
-        batch = sampler.sample(min(chunk_size, num_samples - done))
-        x = batch["x"].float().to(dev)
-        f, omega = current(x, create_graph=False)
-        phase = phase_from_f(current, x, f)
-        w = von_mises_weight(phase, level, kappa) * omega.norm(dim=-1).double()
-        values.append(w.cpu() * batch["weight"].double())
-        done += len(x)
+    with level_set_view(current):  # the mesh's level is one of the network's phase (a sharpened current's too)
+        while done < num_samples:
+            batch = sampler.sample(min(chunk_size, num_samples - done))
+            x = batch["x"].float().to(dev)
+            f, omega = current(x, create_graph=False)
+            phase = phase_from_f(current, x, f)
+            w = von_mises_slope(phase, level, kappa) * omega.norm(dim=-1).double()
+            values.append(w.cpu() * batch["weight"].double())
+            done += len(x)
     v = torch.cat(values)
     scale = mass_to_area(1.0, 3, current.alpha_scale)
     return float(v.mean()) * scale, float(v.std() / math.sqrt(v.numel())) * scale

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 
 import torch
 from torch import nn
@@ -14,12 +16,29 @@ from deepcurrents.nn.field_gradient import check_matmul_precision, closed_form_s
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.grid_encoding import MultiresGrid
 from deepcurrents.nn.mlp import FieldMLP
+from deepcurrents.nn.phase_map import von_mises_offset, von_mises_slope
 
 
 def spatial_gradient(f: torch.Tensor, x: torch.Tensor, create_graph: bool) -> torch.Tensor:
     """∂f/∂x by autograd, per sample. f: (N,) computed row-wise from x: (N, D) with requires_grad → (N, D)."""
     (grad,) = torch.autograd.grad(f.sum(), x, create_graph=create_graph)
     return grad
+
+
+def level_set_view(current: nn.Module) -> AbstractContextManager:
+    """A context in which ``current`` is read for its level sets: a sharpened ``NeuralCurrent`` is the network's
+    own current there (``NeuralCurrent.unsharpened``); any other current as it is."""
+    view = getattr(current, "unsharpened", None)
+    return view() if view is not None else nullcontext()
+
+
+def reads_level_sets(extract: Callable) -> Callable:
+    """Decorates ``extract(current, ...)`` (a mesher) to run inside ``level_set_view(current)``."""
+    @functools.wraps(extract)
+    def wrapper(current, *args, **kwargs):
+        with level_set_view(current):
+            return extract(current, *args, **kwargs)
+    return wrapper
 
 
 class NeuralCurrent(nn.Module):
@@ -47,9 +66,21 @@ class NeuralCurrent(nn.Module):
     next ``HARMONICS_RAMP`` of it, ``set_progress``); until then f = h_0 alone. From the start, the harmonics
     settle the jump on the solid angle's nearest level set, which for a knotted curve is far from minimal (the
     trefoil's: 0.83 against 0.737) and stays there; opened later, they sharpen the jump where h_0 has put it.
+    ``phase_sharpening`` κ > 0 (beyond the paper; experimental, in no preset: README "Recipes"): the current is
+    the network's current concentrated onto one level of its own phase, ω = ψ'(φ)·(∇f_θ + alpha_scale·α) and
+    f = f_θ + 2·alpha_scale·(ψ(φ) − φ), with φ = f_θ/(2·alpha_scale) + Ω_Γ/2 the network's phase and ψ the von
+    Mises map of the circle around a level c (``nn.phase_map``; in 2D φ = f_θ/alpha_scale + Σ_j s_j·angle(x − p_j)
+    and f = f_θ + alpha_scale·(ψ(φ) − φ)). ω is again a current with boundary Γ, and by the coarea formula its mass
+    is the ψ'-weighted mean of the areas of the level sets {φ = t} near c, where the plain current's mass is their
+    plain mean: the far levels of a smeared jump (bulged caps) stop counting, and the loss works on the level sets
+    next to c. c is set once, when the sharpening opens, to θ + π with θ the circular mean of φ over fixed points
+    (the phase off the surface, as the mesher's level; ``_open_sharpening``); φ is taken without f_θ's output bias
+    (a constant turn of every level). κ grows linearly from 0 after ``phase_sharpening_start`` of the budget over
+    the next ``HARMONICS_RAMP`` (``set_progress``). The loss then moves level sets through f_θ's values, which few
+    uniform samples see: train it with importance samples (``data.sampling.kind=importance``).
     """
 
-    HARMONICS_RAMP = 0.2
+    HARMONICS_RAMP = 0.2  # also the sharpening's ramp
 
     gradient: str = "closed_form"
 
@@ -74,6 +105,8 @@ class NeuralCurrent(nn.Module):
         matmul_precision: str = "highest",
         phase_harmonics: int = 0,
         phase_harmonics_start: float = 0.0,
+        phase_sharpening: float = 0.0,
+        phase_sharpening_start: float = 0.0,
     ):
         super().__init__()
         if dim not in (2, 3):
@@ -87,6 +120,17 @@ class NeuralCurrent(nn.Module):
         if not 0.0 <= float(phase_harmonics_start) < 1.0:
             raise ConfigError(f"model.net.phase_harmonics_start={phase_harmonics_start} must be a fraction of the "
                               "training budget in [0, 1).")
+        kappa = float(phase_sharpening) if isinstance(phase_sharpening, (int, float)) else float("nan")
+        if isinstance(phase_sharpening, bool) or not 0.0 <= kappa < float("inf"):
+            raise ConfigError(f"model.net.phase_sharpening={phase_sharpening!r} must be a concentration κ ≥ 0 "
+                              "(0: off).")
+        if not 0.0 <= float(phase_sharpening_start) < 1.0:
+            raise ConfigError(f"model.net.phase_sharpening_start={phase_sharpening_start} must be a fraction of the "
+                              "training budget in [0, 1).")
+        self.phase_sharpening, self.phase_sharpening_start = kappa, float(phase_sharpening_start)
+        if kappa:  # the present κ and the level c (NaN until the sharpening opens): buffers, so checkpoints keep them
+            self.register_buffer("sharpening", torch.tensor(0.0 if self.phase_sharpening_start > 0 else kappa))
+            self.register_buffer("sharpening_level", torch.tensor(float("nan")))
         self.phase_harmonics = phase_harmonics
         self.phase_harmonics_start = float(phase_harmonics_start)
         # the harmonics' weight in f: 1 unless they open later (a buffer, so a checkpoint evaluates as trained;
@@ -124,36 +168,78 @@ class NeuralCurrent(nn.Module):
         return list(torch.split(self.vertices, self.loop_sizes.tolist()))
 
     def f(self, x: torch.Tensor) -> torch.Tensor:
-        """The scalar field f_θ. (N, d) → (N,)."""
+        """The scalar field f (the network's f_θ, through the harmonics and the sharpening if any). (N, d) → (N,)."""
+        u = self._boundary_angle(x)
+        f = self._network_f(x, u)
+        return f if u is None or not self.phase_sharpening else self._sharpen(f, None, u)[0]
+
+    def _network_f(self, x: torch.Tensor, u: torch.Tensor | None) -> torch.Tensor:
+        """f_θ of the network (with its harmonics, before any sharpening); u from ``_boundary_angle``.
+        (N, d) → (N,)."""
         features = self.encoding(x)
         if self.grid is not None:
             features = torch.cat([features, self.grid(x)], dim=-1)
         if self.phase_harmonics:
-            return (self.mlp(features) * self.phase_basis(x)[0]).sum(-1)
+            return (self.mlp(features) * self.phase_basis(x, u)[0]).sum(-1)
         return self.mlp(features).squeeze(-1)
 
     @property
     def follows_progress(self) -> bool:
-        """Whether training must call ``set_progress`` (harmonics that open later)."""
-        return self.phase_harmonics > 0 and self.phase_harmonics_start > 0
+        """Whether training must call ``set_progress`` (harmonics or a sharpening that open later)."""
+        return (self.phase_harmonics > 0 and self.phase_harmonics_start > 0) or (
+            self.phase_sharpening > 0 and self.phase_sharpening_start > 0)
 
     def set_progress(self, progress: float) -> None:
-        """The harmonics' gate at the fraction ``progress`` ∈ [0, 1] of the training budget: 0 before
-        ``phase_harmonics_start``, then linear to 1 over ``HARMONICS_RAMP``."""
-        if self.follows_progress:
-            self.harmonic_gate.fill_(min(max((progress - self.phase_harmonics_start) / self.HARMONICS_RAMP, 0.0), 1.0))
+        """The harmonics' gate and the sharpening's κ at the fraction ``progress`` ∈ [0, 1] of the training
+        budget: 0 before their start, then linear to full over ``HARMONICS_RAMP``."""
+        def opened(start: float) -> float:
+            return min(max((progress - start) / self.HARMONICS_RAMP, 0.0), 1.0)
+        if self.phase_harmonics and self.phase_harmonics_start > 0:
+            self.harmonic_gate.fill_(opened(self.phase_harmonics_start))
+        if self.phase_sharpening and self.phase_sharpening_start > 0:
+            self.sharpening.fill_(self.phase_sharpening * opened(self.phase_sharpening_start))
 
-    def phase_basis(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def _boundary_angle(self, x: torch.Tensor) -> torch.Tensor | None:
+        """u, the boundary's part of the phase, where the harmonics or the sharpening need it now, else None:
+        Ω_Γ(x)/2 in 3D (∇u = α/2), Σ_j s_j·angle(x − p_j) in 2D (∇u = α). (N, d) → (N,), no gradient."""
+        harmonics = self.phase_harmonics and float(self.harmonic_gate) > 0.0
+        if not (harmonics or (self.phase_sharpening and float(self.sharpening) > 0.0)):
+            return None
+        with torch.no_grad():
+            x = x.detach()
+            if self.dim == 3:
+                return 0.5 * solid_angle(x, self.loops)
+            d = x.unsqueeze(1) - self.poles.to(x.dtype).unsqueeze(0)  # (N, P, 2)
+            return (self.signs.to(x.dtype) * torch.atan2(d[..., 1], d[..., 0])).sum(-1)
+
+    def _sharpen(self, f: torch.Tensor, omega: torch.Tensor | None, u: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The network's (f, ω) concentrated onto the level c of its phase (class docstring): (ψ-shifted f,
+        ψ'(φ)·ω). f (N,), ω (N, d) or None, u (N,) from ``_boundary_angle`` → ((N,), (N, d) or None);
+        differentiable in f and ω."""
+        kappa = float(self.sharpening)
+        unit = (2.0 if self.dim == 3 else 1.0) * self.alpha_scale  # f per radian of phase: the jump is 2π·unit
+        # the phase without f_θ's output bias, a constant shift of every level: left in, the loss would pass Adam a
+        # gradient for it, and Adam's steps of about lr would turn the phase by lr/unit ≈ 1 rad a step
+        phase = (f - self.mlp.net[-1].bias[0]) / unit + u
+        if torch.isnan(self.sharpening_level):
+            self._open_sharpening(unit)
+        level = self.sharpening_level.to(phase.dtype)
+        f = f + unit * von_mises_offset(phase, level, kappa)
+        return f, None if omega is None else von_mises_slope(phase, level, kappa)[:, None] * omega
+
+    def phase_basis(self, x: torch.Tensor, u: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """The outputs' basis with phase harmonics: e = [1, g·a·cos(ku)/k, g·a·sin(ku)/k]_{k=1..K} and its
         derivative ∂e/∂u = [0, −g·a·sin(ku), g·a·cos(ku)], a = alpha_scale, g the gate (``set_progress``),
-        u = Ω_Γ(x)/2 (∇u = α_Γ/2). (N, 3) → 2 × (N, 2K + 1), no gradient (e enters f = Σ_m h_m e_m as data; its
-        x-derivative is added through α)."""
+        u = Ω_Γ(x)/2 (∇u = α_Γ/2; computed here unless given, (N,)). (N, 3) → 2 × (N, 2K + 1), no gradient (e
+        enters f = Σ_m h_m e_m as data; its x-derivative is added through α)."""
         with torch.no_grad():
             if float(self.harmonic_gate) == 0.0:  # not open yet: f = h_0, and no solid angle to compute
                 basis = x.new_zeros(x.shape[0], 1 + 2 * self.phase_harmonics)
                 basis[:, 0] = 1.0
                 return basis, torch.zeros_like(basis)
-            u = 0.5 * solid_angle(x.detach(), self.loops)
+            if u is None:
+                u = 0.5 * solid_angle(x.detach(), self.loops)
             k = torch.arange(1, self.phase_harmonics + 1, dtype=x.dtype, device=x.device)
             ku = u[:, None] * k
             cos, sin = torch.cos(ku), torch.sin(ku)
@@ -184,9 +270,20 @@ class NeuralCurrent(nn.Module):
         """
         x = x.detach()
         field = self.field(x) if alpha is None else alpha
+        u = self._boundary_angle(x)
         basis = slope = None
         if self.phase_harmonics:
-            basis, slope = self.phase_basis(x)
+            basis, slope = self.phase_basis(x, u)
+        f, omega = self._network_current(x, field, basis, slope, create_graph)
+        if u is not None and self.phase_sharpening:
+            with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
+                f, omega = self._sharpen(f, omega, u)
+        return f, omega
+
+    def _network_current(self, x: torch.Tensor, field: torch.Tensor, basis: torch.Tensor | None,
+                         slope: torch.Tensor | None, create_graph: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """(f, ω) of the network itself (``forward`` before any sharpening): x (N, d), α_Γ(x) (N, d), the
+        harmonics' basis and slope (N, 2K + 1) or None → ((N,), (N, d))."""
         # the hand-written pass: the MLP on the Fourier features and, if any, the grid features after them
         extra_dim = self.grid.out_dim if self.grid is not None else 0
         if self.gradient == "closed_form" and closed_form_supported(self.mlp, self.encoding, extra_dim=extra_dim,
@@ -230,6 +327,34 @@ class NeuralCurrent(nn.Module):
         ∇u = α_Γ/2, which joins α itself: ω = Σ_m e_m ∇h_m + (alpha_scale + (h·∂e/∂u)/2)·α_Γ."""
         f = (h * basis).sum(-1)
         return f, grad_h + (self.alpha_scale + 0.5 * (h * slope).sum(-1, keepdim=True)) * field
+
+    @contextmanager
+    def unsharpened(self) -> Iterator[NeuralCurrent]:
+        """This module as the network's own current (κ = 0) inside the context. ψ is monotone, so the sharpened
+        current's level sets are those of the network's phase φ, which is smooth where ψ∘φ is steep: the mesher's
+        coarse cells and Newton steps assume a smooth phase (meshed sharpened, a trefoil came out 0.861 with its
+        border 0.068 off Γ; the same checkpoint meshed through φ, 0.7367)."""
+        if not self.phase_sharpening:
+            yield self
+            return
+        kappa = float(self.sharpening)
+        self.sharpening.fill_(0.0)
+        try:
+            yield self
+        finally:
+            self.sharpening.fill_(kappa)
+
+    @torch.no_grad()
+    def _open_sharpening(self, unit: float, probes: int = 4096) -> None:
+        """Sets the sharpening's level c = θ + π, θ the circular mean of the network's phase (without its output
+        bias) over fixed quasi-random points of [-1, 1]^d: the phase off the surface, where most points are (the
+        mesher's level likewise). The same points on every DDP rank and at every resume, so c is too."""
+        weight = self.mlp.net[-1].weight
+        x = torch.quasirandom.SobolEngine(self.dim, scramble=True, seed=0).draw(probes).to(weight) * 2.0 - 1.0
+        u = self._boundary_angle(x)
+        phase = (self._network_f(x, u) - self.mlp.net[-1].bias[0]) / unit + u
+        theta = torch.atan2(torch.sin(phase).mean(), torch.cos(phase).mean())
+        self.sharpening_level.fill_(float(theta) + torch.pi)
 
     @torch.no_grad()
     def evaluate(self, x: torch.Tensor, chunk_size: int = 1 << 15, omega: bool = True):

@@ -21,6 +21,7 @@ from skimage.measure import find_contours
 
 from deepcurrents.eval.device import device_of
 from deepcurrents.eval.meshing.level_set import aligned_with_grad_f
+from deepcurrents.nn.current import reads_level_sets
 
 CURVE_METHODS = ("phase", "level_set")
 
@@ -33,6 +34,7 @@ def phase_2d(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
 
 
 @torch.no_grad()
+@reads_level_sets
 def extract_curve_2d(
     current, resolution: int = 256, delta: float = 5e-3, boundary_tube: float = 0.03, min_alignment: float = 0.5,
     method: str = "phase", chunk_size: int = 1 << 16,

@@ -34,6 +34,7 @@ from deepcurrents.eval.meshing.level_set import LevelSetMethod
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.eval.meshing.phase import PhaseMethod
 from deepcurrents.geometry.topology import border_edges
+from deepcurrents.nn.current import reads_level_sets
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +121,7 @@ def _grid(bounds: np.ndarray, resolution: int) -> tuple[np.ndarray, tuple[int, i
 
 
 @torch.no_grad()
+@reads_level_sets
 def extract_surface(
     current,
     resolution: int = 128,
