@@ -87,8 +87,8 @@ def test_phase_sharpening_lowers_the_circles_bound_and_keeps_it_a_bound(tmp_path
                  "model.net.width=32", "model.net.depth=2", "evaluation.mesh.resolution=48",
                  "evaluation.mass_samples=262144", "data.sampling.kind=importance"]
     plain = train(compose_cfg(overrides + SMALL), out_dir=tmp_path / "plain")
-    sharp = train(compose_cfg(overrides + SMALL + ["model.net.phase_sharpening=2",
-                                                    "model.net.phase_sharpening_start=0.5"]), out_dir=tmp_path / "sharp")
+    sharpening = ["model.net.phase_sharpening=2", "model.net.phase_sharpening_start=0.5"]
+    sharp = train(compose_cfg(overrides + SMALL + sharpening), out_dir=tmp_path / "sharp")
     assert sharp["mass_area"] < plain["mass_area"] - 2 * plain["mass_area_stderr"], (plain, sharp)
     assert sharp["mass_area"] > exact - 4 * sharp["mass_area_stderr"], sharp
     assert abs(sharp["mesh_area"] - exact) < 0.05 * exact and sharp["boundary_error"] < 0.02, sharp
