@@ -1,4 +1,4 @@
-"""The von Mises map of the circle (nn.phase_map) and the phase sharpening it gives NeuralCurrent, against
+"""The von Mises map of the circle (geometry.phase_map) and the phase sharpening it gives NeuralCurrent, against
 quadrature, finite differences and the coarea formula: ψ' has mean 1 over a turn, ψ' is the derivative of ψ,
 ψ(φ + 2π) = ψ(φ) + 2π; the sharpened current is ψ'(φ)·ω with f single valued, and its ω is ∇f + alpha_scale·α."""
 
@@ -11,7 +11,7 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import circle
 from deepcurrents.geometry.biot_savart import solid_angle
 from deepcurrents.nn import NeuralCurrent
-from deepcurrents.nn.phase_map import von_mises_offset, von_mises_slope
+from deepcurrents.geometry.phase_map import von_mises_offset, von_mises_slope
 
 
 @pytest.mark.parametrize("kappa", [0.5, 4.0, 30.0])
@@ -133,7 +133,7 @@ def test_meshers_read_a_sharpened_current_through_its_network_phase():
     """ψ is monotone, so the level sets are the network's: the mesh and the certificate read φ itself (smooth),
     and the context gives κ back afterwards."""
     from deepcurrents.eval.meshing import extract_surface
-    from deepcurrents.nn.current import level_set_view
+    from deepcurrents.eval.level_sets import level_set_view
 
     torch.manual_seed(0)
     loop = torch.tensor(circle(0.5, n=64)).float()

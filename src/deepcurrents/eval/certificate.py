@@ -25,10 +25,10 @@ import math
 import torch
 
 from deepcurrents.eval.device import device_of
+from deepcurrents.eval.level_sets import level_set_view
 from deepcurrents.eval.meshing.phase import phase_from_f
 from deepcurrents.eval.metrics import mass_to_area
-from deepcurrents.nn.current import level_set_view
-from deepcurrents.nn.phase_map import von_mises_slope
+from deepcurrents.geometry.phase_map import von_mises_slope
 
 
 @torch.no_grad()
@@ -39,7 +39,8 @@ def sharpened_mass_estimate(current, sampler, level: float, kappa: float = 16.0,
     the weights vol(U)/(vol(U)·q) that make weighted means unbiased (``data.sampling.mesh_sampler``: mostly in
     the cells around the phase mesh); ``level``: the mesh's phase φ* (the off-surface phase θ + π);
     ``kappa``: the von Mises concentration (0: the plain bound). A sharpened ``NeuralCurrent`` is read through its
-    network's own current (``nn.current.level_set_view``), as the mesher reads it: the level is one of that phase."""
+    network's own current (``eval.level_sets.level_set_view``), as the mesher reads it: the level is one of that
+    phase."""
     if current.dim != 3:
         raise ValueError("The sharpened bound is defined for 3D currents (the phase needs the solid angle).")
     dev = device_of(current)

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 import torch
 from torch import nn
@@ -12,33 +11,17 @@ from torch import nn
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import biot_savart, biot_savart_2d
 from deepcurrents.geometry.biot_savart import solid_angle
+from deepcurrents.geometry.phase_map import von_mises_offset, von_mises_slope
 from deepcurrents.nn.field_gradient import check_matmul_precision, closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.grid_encoding import MultiresGrid
 from deepcurrents.nn.mlp import FieldMLP
-from deepcurrents.nn.phase_map import von_mises_offset, von_mises_slope
 
 
 def spatial_gradient(f: torch.Tensor, x: torch.Tensor, create_graph: bool) -> torch.Tensor:
     """∂f/∂x by autograd, per sample. f: (N,) computed row-wise from x: (N, D) with requires_grad → (N, D)."""
     (grad,) = torch.autograd.grad(f.sum(), x, create_graph=create_graph)
     return grad
-
-
-def level_set_view(current: nn.Module) -> AbstractContextManager:
-    """A context in which ``current`` is read for its level sets: a sharpened ``NeuralCurrent`` is the network's
-    own current there (``NeuralCurrent.unsharpened``); any other current as it is."""
-    view = getattr(current, "unsharpened", None)
-    return view() if view is not None else nullcontext()
-
-
-def reads_level_sets(extract: Callable) -> Callable:
-    """Decorates ``extract(current, ...)`` (a mesher) to run inside ``level_set_view(current)``."""
-    @functools.wraps(extract)
-    def wrapper(current, *args, **kwargs):
-        with level_set_view(current):
-            return extract(current, *args, **kwargs)
-    return wrapper
 
 
 class NeuralCurrent(nn.Module):
@@ -69,7 +52,7 @@ class NeuralCurrent(nn.Module):
     ``phase_sharpening`` κ > 0 (beyond the paper; experimental, in no preset: README "Recipes"): the current is
     the network's current concentrated onto one level of its own phase, ω = ψ'(φ)·(∇f_θ + alpha_scale·α) and
     f = f_θ + 2·alpha_scale·(ψ(φ) − φ), with φ = f_θ/(2·alpha_scale) + Ω_Γ/2 the network's phase and ψ the von
-    Mises map of the circle around a level c (``nn.phase_map``; in 2D φ = f_θ/alpha_scale + Σ_j s_j·angle(x − p_j)
+    Mises map of the circle around a level c (``geometry.phase_map``; in 2D φ = f_θ/alpha_scale + Σ_j s_j·angle(x − p_j)
     and f = f_θ + alpha_scale·(ψ(φ) − φ)). ω is again a current with boundary Γ, and by the coarea formula its mass
     is the ψ'-weighted mean of the areas of the level sets {φ = t} near c, where the plain current's mass is their
     plain mean: the far levels of a smeared jump (bulged caps) stop counting, and the loss works on the level sets

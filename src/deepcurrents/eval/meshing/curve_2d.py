@@ -20,8 +20,8 @@ from scipy.ndimage import map_coordinates
 from skimage.measure import find_contours
 
 from deepcurrents.eval.device import device_of
+from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.level_set import aligned_with_grad_f
-from deepcurrents.nn.current import reads_level_sets
 
 CURVE_METHODS = ("phase", "level_set")
 

@@ -29,12 +29,12 @@ import trimesh
 from skimage.measure import marching_cubes
 
 from deepcurrents.eval.device import device_of
+from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
 from deepcurrents.eval.meshing.level_set import LevelSetMethod
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.eval.meshing.phase import PhaseMethod
 from deepcurrents.geometry.topology import border_edges
-from deepcurrents.nn.current import reads_level_sets
 
 log = logging.getLogger(__name__)
 
