@@ -10,8 +10,8 @@ import torch
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import circle
 from deepcurrents.geometry.biot_savart import solid_angle
-from deepcurrents.nn import NeuralCurrent
 from deepcurrents.geometry.phase_map import von_mises_offset, von_mises_slope
+from deepcurrents.nn import NeuralCurrent
 
 
 @pytest.mark.parametrize("kappa", [0.5, 4.0, 30.0])
@@ -132,8 +132,8 @@ def test_bad_sharpening_values_are_refused(kwargs, words):
 def test_meshers_read_a_sharpened_current_through_its_network_phase():
     """ψ is monotone, so the level sets are the network's: the mesh and the certificate read φ itself (smooth),
     and the context gives κ back afterwards."""
-    from deepcurrents.eval.meshing import extract_surface
     from deepcurrents.eval.level_sets import level_set_view
+    from deepcurrents.eval.meshing import extract_surface
 
     torch.manual_seed(0)
     loop = torch.tensor(circle(0.5, n=64)).float()
