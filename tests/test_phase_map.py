@@ -147,3 +147,14 @@ def test_meshers_read_a_sharpened_current_through_its_network_phase():
     assert float(sharp.sharpening) == 8.0
     assert meshed.mesh.area == pytest.approx(plain.mesh.area, rel=1e-12)
     assert meshed.mesh.area == pytest.approx(math.pi * 0.25, rel=0.02)  # f_θ ≡ const: the flat disk
+
+
+def test_harmonics_opening_first_leave_the_sharpening_closed():
+    """With harmonics open and the sharpening not yet, the current is the harmonics' and c stays unset."""
+    both = _current(phase_harmonics=2, phase_sharpening=2.0, phase_sharpening_start=0.5)
+    x = torch.rand(32, 3, dtype=torch.float64) * 2 - 1
+    both(x, create_graph=False)
+    assert math.isnan(float(both.sharpening_level))
+    both.set_progress(0.9)
+    both(x, create_graph=False)
+    assert math.isfinite(float(both.sharpening_level))

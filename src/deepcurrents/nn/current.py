@@ -201,6 +201,8 @@ class NeuralCurrent(nn.Module):
         ψ'(φ)·ω). f (N,), ω (N, d) or None, u (N,) from ``_boundary_angle`` → ((N,), (N, d) or None);
         differentiable in f and ω."""
         kappa = float(self.sharpening)
+        if kappa == 0.0:  # not open yet (or read unsharpened): ψ is the identity, and c is not set before it opens
+            return f, omega
         unit = (2.0 if self.dim == 3 else 1.0) * self.alpha_scale  # f per radian of phase: the jump is 2π·unit
         # the phase without f_θ's output bias, a constant shift of every level: left in, the loss would pass Adam a
         # gradient for it, and Adam's steps of about lr would turn the phase by lr/unit ≈ 1 rad a step
