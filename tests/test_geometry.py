@@ -182,3 +182,16 @@ def test_project_to_segments_and_hausdorff_brute_force():
     sq = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
     h = polyline_hausdorff(sq, np.roll(sq, -1, 0), 0.5 * sq, 0.5 * np.roll(sq, -1, 0), spacing=1e-3)
     assert abs(h - math.sqrt(0.5)) < 1e-3
+
+
+def test_angle_2d_is_the_potential_of_the_2d_biot_savart_field():
+    """∇ Σ_j s_j·angle(x − p_j) = biot_savart_2d, by central differences away from the points."""
+    from deepcurrents.geometry import angle_2d, biot_savart_2d
+
+    poles = torch.tensor([[-0.4, 0.0], [0.4, 0.1]], dtype=torch.float64)
+    signs = torch.tensor([-1.0, 1.0], dtype=torch.float64)
+    x = torch.tensor([[0.1, 0.5], [-0.6, -0.3], [0.7, -0.8]], dtype=torch.float64)
+    h = 1e-6
+    fd = torch.stack([(angle_2d(x + e, poles, signs) - angle_2d(x - e, poles, signs)) / (2 * h)
+                      for e in torch.eye(2, dtype=torch.float64) * h], 1)
+    assert torch.allclose(fd, biot_savart_2d(x, poles, signs), rtol=1e-7, atol=1e-9)

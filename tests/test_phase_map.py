@@ -123,7 +123,9 @@ def test_output_bias_gets_no_gradient_from_the_sharpening():
 
 
 @pytest.mark.parametrize("kwargs, words", [({"phase_sharpening": -1.0}, "κ ≥ 0"),
-                                           ({"phase_sharpening": 2.0, "phase_sharpening_start": 1.0}, "fraction")])
+                                           ({"phase_sharpening": "two"}, "κ ≥ 0"),
+                                           ({"phase_sharpening": 2.0, "phase_sharpening_start": 1.0}, "fraction"),
+                                           ({"phase_sharpening": 2.0, "phase_sharpening_start": "half"}, "fraction")])
 def test_bad_sharpening_values_are_refused(kwargs, words):
     with pytest.raises(ConfigError, match=words):
         _current(**kwargs)

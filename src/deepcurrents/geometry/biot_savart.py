@@ -137,6 +137,13 @@ def biot_savart_2d(points: torch.Tensor, poles: torch.Tensor, signs: torch.Tenso
     return (inv.unsqueeze(-1) * jd).sum(1)
 
 
+def angle_2d(points: torch.Tensor, poles: torch.Tensor, signs: torch.Tensor) -> torch.Tensor:
+    """Σ_j s_j·angle(x − p_j), the 2D analogue of the solid angle (one branch, modulo 2π; ∇ of it is
+    ``biot_savart_2d``). points (N, 2), poles (P, 2), signs (P,) → (N,), the dtype of ``points``."""
+    d = points.unsqueeze(1) - poles.to(dtype=points.dtype, device=points.device).unsqueeze(0)  # (N, P, 2)
+    return (signs.to(dtype=points.dtype, device=points.device) * torch.atan2(d[..., 1], d[..., 0])).sum(-1)
+
+
 def solid_angle(points: torch.Tensor, loops: Sequence[torch.Tensor] | torch.Tensor,
                 chunk_size: int | None = None) -> torch.Tensor:
     """Solid angle Ω_Γ(x) of closed loops seen from points (one branch, modulo 4π), with α_Γ = ∇Ω_Γ.

@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from deepcurrents.errors import ConfigError
-from deepcurrents.geometry import biot_savart, biot_savart_2d
+from deepcurrents.geometry import angle_2d, biot_savart, biot_savart_2d
 from deepcurrents.geometry.biot_savart import solid_angle
 from deepcurrents.geometry.phase_map import von_mises_offset, von_mises_slope
 from deepcurrents.nn.field_gradient import check_matmul_precision, closed_form_supported, field_and_gradient
@@ -100,14 +100,16 @@ class NeuralCurrent(nn.Module):
         if phase_harmonics and dim != 3:
             raise ConfigError(f"model.net.phase_harmonics={phase_harmonics} needs a 3D boundary (the harmonics are "
                               "those of the solid angle); use 0 for 2D curves.")
-        if not 0.0 <= float(phase_harmonics_start) < 1.0:
+        if isinstance(phase_harmonics_start, bool) or not isinstance(phase_harmonics_start, (int, float)) \
+                or not 0.0 <= phase_harmonics_start < 1.0:
             raise ConfigError(f"model.net.phase_harmonics_start={phase_harmonics_start} must be a fraction of the "
                               "training budget in [0, 1).")
         kappa = float(phase_sharpening) if isinstance(phase_sharpening, (int, float)) else float("nan")
         if isinstance(phase_sharpening, bool) or not 0.0 <= kappa < float("inf"):
             raise ConfigError(f"model.net.phase_sharpening={phase_sharpening!r} must be a concentration κ ≥ 0 "
                               "(0: off).")
-        if not 0.0 <= float(phase_sharpening_start) < 1.0:
+        if isinstance(phase_sharpening_start, bool) or not isinstance(phase_sharpening_start, (int, float)) \
+                or not 0.0 <= phase_sharpening_start < 1.0:
             raise ConfigError(f"model.net.phase_sharpening_start={phase_sharpening_start} must be a fraction of the "
                               "training budget in [0, 1).")
         self.phase_sharpening, self.phase_sharpening_start = kappa, float(phase_sharpening_start)
@@ -190,10 +192,7 @@ class NeuralCurrent(nn.Module):
             return None
         with torch.no_grad():
             x = x.detach()
-            if self.dim == 3:
-                return 0.5 * solid_angle(x, self.loops)
-            d = x.unsqueeze(1) - self.poles.to(x.dtype).unsqueeze(0)  # (N, P, 2)
-            return (self.signs.to(x.dtype) * torch.atan2(d[..., 1], d[..., 0])).sum(-1)
+            return 0.5 * solid_angle(x, self.loops) if self.dim == 3 else angle_2d(x, self.poles, self.signs)
 
     def _sharpen(self, f: torch.Tensor, omega: torch.Tensor | None, u: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -203,14 +202,11 @@ class NeuralCurrent(nn.Module):
         kappa = float(self.sharpening)
         if kappa == 0.0:  # not open yet (or read unsharpened): ψ is the identity, and c is not set before it opens
             return f, omega
-        unit = (2.0 if self.dim == 3 else 1.0) * self.alpha_scale  # f per radian of phase: the jump is 2π·unit
-        # the phase without f_θ's output bias, a constant shift of every level: left in, the loss would pass Adam a
-        # gradient for it, and Adam's steps of about lr would turn the phase by lr/unit ≈ 1 rad a step
-        phase = (f - self.mlp.net[-1].bias[0]) / unit + u
+        phase = self._network_phase(f, u)
         if torch.isnan(self.sharpening_level):
-            self._open_sharpening(unit)
+            self._open_sharpening()
         level = self.sharpening_level.to(phase.dtype)
-        f = f + unit * von_mises_offset(phase, level, kappa)
+        f = f + self._phase_unit * von_mises_offset(phase, level, kappa)
         return f, None if omega is None else von_mises_slope(phase, level, kappa)[:, None] * omega
 
     def phase_basis(self, x: torch.Tensor, u: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -329,15 +325,26 @@ class NeuralCurrent(nn.Module):
         finally:
             self.sharpening.fill_(kappa)
 
+    @property
+    def _phase_unit(self) -> float:
+        """f per radian of phase: the jump of f across the surface is 2π times it (2·alpha_scale in 3D)."""
+        return (2.0 if self.dim == 3 else 1.0) * self.alpha_scale
+
+    def _network_phase(self, f: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """φ = (f_θ − b)/unit + u, the network's phase without its output bias b: b turns every level alike, and
+        left in, the loss would pass Adam a gradient for it whose steps of about lr turn the phase by lr/unit ≈ 1 rad
+        a step. f (N,), u (N,) → (N,), differentiable in f."""
+        return (f - self.mlp.net[-1].bias[0]) / self._phase_unit + u
+
     @torch.no_grad()
-    def _open_sharpening(self, unit: float, probes: int = 4096) -> None:
+    def _open_sharpening(self, probes: int = 4096) -> None:
         """Sets the sharpening's level c = θ + π, θ the circular mean of the network's phase (without its output
         bias) over fixed quasi-random points of [-1, 1]^d: the phase off the surface, where most points are (the
         mesher's level likewise). The same points on every DDP rank and at every resume, so c is too."""
         weight = self.mlp.net[-1].weight
         x = torch.quasirandom.SobolEngine(self.dim, scramble=True, seed=0).draw(probes).to(weight) * 2.0 - 1.0
         u = self._boundary_angle(x)
-        phase = (self._network_f(x, u) - self.mlp.net[-1].bias[0]) / unit + u
+        phase = self._network_phase(self._network_f(x, u), u)
         theta = torch.atan2(torch.sin(phase).mean(), torch.cos(phase).mean())
         self.sharpening_level.fill_(float(theta) + torch.pi)
 

@@ -22,15 +22,14 @@ from skimage.measure import find_contours
 from deepcurrents.eval.device import device_of
 from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.level_set import aligned_with_grad_f
+from deepcurrents.geometry import angle_2d
 
 CURVE_METHODS = ("phase", "level_set")
 
 
 def phase_2d(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
     """φ = f/s + Σ_j s_j angle(x − p_j) at points x (N, 2) from f there (N,) → (N,) float64 (module docstring)."""
-    d = x.double().unsqueeze(1) - current.poles.double().unsqueeze(0)  # (N, P, 2)
-    angle = (current.signs.double() * torch.atan2(d[..., 1], d[..., 0])).sum(-1)
-    return f.double() / current.alpha_scale + angle
+    return f.double() / current.alpha_scale + angle_2d(x.double(), current.poles, current.signs)
 
 
 @torch.no_grad()
