@@ -9,7 +9,8 @@ load hits both); prints one JSON line with the ratios to ``trainer.max_steps`` s
 on a shared machine, run it alternately from each (``git worktree add /tmp/old <commit>``, then
 ``PYTHONPATH=/tmp/old/src python benchmarks/final_evaluation_cost.py …``): the ratios, not the seconds, are
 comparable. ``--mass-refine 1`` evaluates with the plain mass estimate (``evaluation.mass_refine``),
-``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``).
+``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``), ``--mass-refine-mesh 0|1`` without or with
+the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it).
 ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
 """
 
@@ -57,11 +58,15 @@ def main() -> None:
                     help="evaluation.mass_refine for this evaluation (default: the run's; 1 = the plain estimate)")
     ap.add_argument("--mass-rel-stderr", type=float, default=None,
                     help="evaluation.mass_rel_stderr for this evaluation (default: the run's)")
+    ap.add_argument("--mass-refine-mesh", type=int, choices=(0, 1), default=None,
+                    help="evaluation.mass_refine_mesh for this evaluation (default: the run's)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     module = load_module(args.ckpt)
     if args.mass_refine is not None:
         module.evaluation["mass_refine"] = args.mass_refine
+    if args.mass_refine_mesh is not None:
+        module.evaluation["mass_refine_mesh"] = bool(args.mass_refine_mesh)
     if args.mass_rel_stderr is not None:
         module.evaluation["mass_rel_stderr"] = args.mass_rel_stderr
     cfg = OmegaConf.create(module.run_config)

@@ -242,6 +242,8 @@ def test_mass_estimate_stops_at_the_requested_precision():
         validate_config(compose_cfg(["evaluation.mass_rel_stderr=-1"]))
     with pytest.raises(ConfigError, match=r"evaluation\.mass_refine=0 must be a positive integer"):
         validate_config(compose_cfg(["evaluation.mass_refine=0"]))
+    with pytest.raises(ConfigError, match=r"evaluation\.mass_refine_mesh='yes' must be true or false"):
+        validate_config(compose_cfg(["evaluation.mass_refine_mesh=yes"]))
 
 
 class _RadialField(torch.nn.Module):
@@ -420,3 +422,44 @@ def test_mass_estimate_refined_near_the_boundary_is_unbiased_and_tighter():
     on_axis = torch.stack(torch.meshgrid(torch.arange(16), torch.arange(16), torch.arange(16), indexing="ij"), -1)
     on_axis = torch.isin(on_axis.reshape(-1, 3)[:, :2], torch.tensor([7, 8])).all(1)
     assert bool(near[on_axis].all()) and int(near.sum()) < 16 * 16 * 16 // 8
+
+
+class _SheetField(torch.nn.Module):
+    """|ω(x)| a Gaussian of σ = 0.01 across the plane z = 0.3 (a current concentrated on one sheet, as a sharpened
+    one is), Γ a short segment far from it. E|ω| over U = [-1, 1]³ is ¼·∫_{-1}^{1} g(z) dz / 2 = ½ (erf terms < 1e-300)."""
+
+    dim = 3
+    loops = [torch.tensor([[-0.9, -0.9, -0.9], [-0.85, -0.9, -0.9]])]
+
+    def forward(self, x, create_graph=False):
+        g = torch.exp(-0.5 * ((x[:, 2].double() - 0.3) / 0.01) ** 2) / (0.01 * math.sqrt(2 * math.pi))
+        return x[:, 0], torch.stack([torch.zeros_like(g), torch.zeros_like(g), g], -1)
+
+
+def test_cells_containing_marks_the_cells_of_the_points():
+    from deepcurrents.eval.metrics import cells_containing
+
+    points = torch.tensor([[-1.0, -1.0, -1.0], [0.1, -0.6, 0.99], [1.0, 1.0, 1.0], [0.12, -0.55, 0.98]])
+    mask = cells_containing(4, 3, points)  # cells of side 0.5: index = floor((x + 1) / 0.5)
+    assert mask.nonzero().squeeze(1).tolist() == [0, 2 * 16 + 0 * 4 + 3, 63]
+
+
+def test_mass_estimate_refined_where_given_points_lie_is_unbiased_and_tighter():
+    """The cells holding points of the sheet are refined too (``refine_points``, the final mesh's vertices in a run):
+    over 48 seeds the estimates of a sheet's ½ centre on it and miss it by less than half as much as the estimate
+    refined near Γ alone."""
+    import statistics
+
+    from deepcurrents.eval.metrics import mass_estimate
+
+    g = torch.linspace(-0.99, 0.99, 60)
+    sheet = torch.stack([*torch.meshgrid(g, g, indexing="ij"), torch.full((60, 60), 0.3)], -1).reshape(-1, 3)
+    errors: dict[bool, list[float]] = {False: [], True: []}
+    for with_sheet, errs in errors.items():
+        for seed in range(48):
+            mean, _ = mass_estimate(_SheetField(), 1 << 12, seed=seed, chunk_size=1 << 12, refine=3,
+                                    refine_points=sheet if with_sheet else None)
+            errs.append(mean - 0.5)
+    median = {k: statistics.median(abs(e) for e in errs) for k, errs in errors.items()}
+    assert median[True] < 0.5 * median[False]
+    assert abs(statistics.mean(errors[True])) < 3 * statistics.pstdev(errors[True]) / math.sqrt(48)

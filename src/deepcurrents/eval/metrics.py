@@ -85,10 +85,22 @@ def cells_near_boundary(k: int, dim: int, segments: tuple[torch.Tensor, torch.Te
     return project_to_segments(centres, *segments).distance < reach * 2.0 / k
 
 
+def cells_containing(k: int, dim: int, points: torch.Tensor) -> torch.Tensor:
+    """Which cells of the k^dim grid over U hold at least one of ``points`` (P, dim). → (k^dim,) bool."""
+    index = ((points.detach().cpu().double() + 1.0) * 0.5 * k).floor().long().clamp(0, k - 1)
+    flat = torch.zeros((), dtype=torch.long)
+    for axis in range(dim):  # row-major, as _cell_corners orders the cells
+        flat = flat * k + index[:, axis]
+    mask = torch.zeros(k**dim, dtype=torch.bool)
+    mask[flat] = True
+    return mask
+
+
 @torch.no_grad()
 def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size: int = 1 << 15,
                   metric_fn=None, rel_stderr: float | None = None, min_samples: int = 1 << 16,
-                  info: dict | None = None, refine: int = 1) -> tuple[float, float]:
+                  info: dict | None = None, refine: int = 1,
+                  refine_points: torch.Tensor | None = None) -> tuple[float, float]:
     """Monte Carlo E_x |B_x ω(x)| over U = [-1, 1]^d and its standard error, in chunks (bounded memory).
 
     Each chunk is stratified (``stratified_uniform``: one sample per cell of a 32³ grid for 2^15 samples in
@@ -104,6 +116,10 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
     within its (sub-)cell, so the estimate stays unbiased. There, with refine 3, one chunk cost 1.73× the
     evaluations and its estimates scattered 5× less (standard deviation over 24 seeds 0.0057 against 0.0293
     in area units); the reported error, conservative by neighbouring cells' differences away from Γ, fell 2.9×.
+    ``refine_points`` (P, d): the cells holding any of them are refined as well, e.g. the vertices of the final
+    mesh: a sharpened current's |ω| lives in a thin shell around its mesh, which crosses cells far from Γ too
+    (``evaluation.mass_refine_mesh``; on a sharpened trefoil with refine 4, 2^18 samples: standard error 0.48 %
+    of the mean against 1.6 % with refine 3 near Γ alone, at 1.4× the time).
     ``metric_fn(x) -> B`` (None for B = I) lets reconstruction evaluate its weighted mass the same way.
     ``rel_stderr``: stop early, once at least ``min_samples`` are drawn and stderr / mean ≤ rel_stderr
     (``num_samples`` is then the most it draws). Samples count cells (the points a plain stratified estimate
@@ -115,14 +131,20 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
     dev = device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
     segments = boundary_segments(current) if refine > 1 else None
+    points = refine_points if refine > 1 and refine_points is not None and len(refine_points) else None
     refined: dict[int, tuple | None] = {}  # per grid side k, found once: (the refined cells, their corners)
     total, paired, done, evaluated = 0.0, 0.0, 0, 0
     while done < num_samples:
         n = min(chunk_size, num_samples - done)
         x = stratified_uniform(n, current.dim, gen)
         k = _strata(n, current.dim)
-        if segments is not None and k >= 2 and k not in refined:
-            near = cells_near_boundary(k, current.dim, segments).nonzero().squeeze(1)
+        if (segments is not None or points is not None) and k >= 2 and k not in refined:
+            near = torch.zeros(k**current.dim, dtype=torch.bool)
+            if segments is not None:
+                near |= cells_near_boundary(k, current.dim, segments)
+            if points is not None:
+                near |= cells_containing(k, current.dim, points)
+            near = near.nonzero().squeeze(1)
             refined[k] = (near, _cell_corners(k, current.dim)[near]) if len(near) else None
         near = None
         if refined.get(k) is not None:

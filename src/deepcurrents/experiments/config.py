@@ -89,6 +89,9 @@ def validate_config(cfg: DictConfig) -> None:
                 "evaluation.mesh.padding", "evaluation.mesh.level_blend", "evaluation.sharpened.kappa",
                 "evaluation.sharpened.samples", "evaluation.curve.delta", "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
+    refine_mesh = OmegaConf.select(cfg, "evaluation.mass_refine_mesh")
+    if refine_mesh not in (None, True, False):
+        raise ConfigError(f"evaluation.mass_refine_mesh={refine_mesh!r} must be true or false.")
     method = OmegaConf.select(cfg, "evaluation.mesh.method")
     if method is not None and method not in MESH_METHOD_CHOICES:
         raise ConfigError(f"evaluation.mesh.method={method!r} must be one of {', '.join(MESH_METHOD_CHOICES)}.")

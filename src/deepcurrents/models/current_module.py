@@ -124,17 +124,21 @@ class CurrentModule(DeepCurrentsModule):
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
         self.current.eval()
+        # the mesh first (3D): with evaluation.mass_refine_mesh the mass estimate refines the cells it crosses
+        result = extract_surface(self.current, **self.mesh_options()) if self.dim == 3 else None
+        refine_points = None
+        if result is not None and self.evaluation.get("mass_refine_mesh") and len(result.mesh.vertices):
+            refine_points = torch.as_tensor(np.asarray(result.mesh.vertices))
         used: dict[str, int] = {}
         mass, stderr = mass_estimate(self.current, seed=int(self.evaluation.get("seed", 12345)), info=used,
-                                     **mass_estimate_settings(self.evaluation))
+                                     refine_points=refine_points, **mass_estimate_settings(self.evaluation))
         scale = mass_to_area(1.0, self.dim, self.current.alpha_scale)
         metrics: dict[str, Any] = {"loss": mass, **self.run_metrics(), "mass_samples": used["samples"],
                                    "mass_evaluations": used["evaluations"]}
         name = "area" if self.dim == 3 else "length"
         metrics[f"mass_{name}"] = mass * scale
         metrics[f"mass_{name}_stderr"] = stderr * scale
-        if self.dim == 3:
-            result = extract_surface(self.current, **self.mesh_options())
+        if result is not None:
             self.meshing = result  # subclasses evaluate the same mesh further
             loops = [lp.cpu().double().numpy() for lp in self.current.loops]
             frame = input_frame(self.hparams.boundary)
