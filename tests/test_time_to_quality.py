@@ -425,8 +425,8 @@ def test_mass_estimate_refined_near_the_boundary_is_unbiased_and_tighter():
 
 
 class _SheetField(torch.nn.Module):
-    """|ω(x)| a Gaussian of σ = 0.01 across the plane z = 0.3 (a current concentrated on one sheet, as a sharpened
-    one is), Γ a short segment far from it. E|ω| over U = [-1, 1]³ is ¼·∫_{-1}^{1} g(z) dz / 2 = ½ (erf terms < 1e-300)."""
+    """|ω(x)| = g(z), a unit Gaussian of σ = 0.01 across the plane z = 0.3 (a current concentrated on one sheet, as a
+    sharpened one is), Γ a short segment far from it. E|ω| over U = [-1, 1]³ is (4/8)·∫_{-1}^{1} g(z) dz = ½."""
 
     dim = 3
     loops = [torch.tensor([[-0.9, -0.9, -0.9], [-0.85, -0.9, -0.9]])]
