@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import subprocess
 import sys
@@ -332,6 +333,30 @@ def test_latent_codes_train_at_their_own_learning_rate(family_dir, tmp_path, fac
 def test_a_latent_learning_rate_factor_must_be_positive(family_dir, tmp_path):
     with pytest.raises(ConfigError, match=r"model.latent_lr_factor=0 must be positive"):
         build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.latent_lr_factor=0"]))
+
+
+def test_winding_weight_adds_the_cap_on_the_drop_across_the_surface(family_dir, tmp_path):
+    """model.winding_weight=w adds w·E[(f(y − εn) − f(y + εn) − 4π·alpha_scale)^+] at the batch's surface samples,
+    with f the member's own; a negative weight is refused in one sentence."""
+    from deepcurrents.losses import surface_values, winding_loss
+
+    cfg = compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.winding_weight=2.5"])
+    datamodule, module = build(cfg)
+    datamodule.setup("fit")
+    batch = next(iter(datamodule.train_dataloader()))
+    torch.manual_seed(0)
+    for p in module.family.mlp.parameters():  # a decoder whose f drops by more than a jump somewhere
+        p.data.normal_(0.0, 0.5)
+    losses = module.compute_losses(batch)
+    code = module.family.code(module.family.latents(batch["index"]), batch["loops"], batch["loop_mask"])
+    f_minus, f_plus = surface_values(lambda x: module.family.f(x, code), batch)
+    expected = winding_loss(f_minus, f_plus, 4 * math.pi * module.family.alpha_scale)
+    assert float(expected) > 0
+    torch.testing.assert_close(losses["winding_loss"], expected)
+    rest = losses["current_loss"] + cfg.model.surface_weight * losses["surface_loss"]
+    torch.testing.assert_close(losses["loss"], rest + 2.5 * expected)
+    with pytest.raises(ConfigError, match=r"model.winding_weight=-1 must be non-negative"):
+        build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.winding_weight=-1"]))
 
 
 def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):

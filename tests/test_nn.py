@@ -98,6 +98,11 @@ def test_losses_by_hand():
     assert surface_loss(torch.tensor([0.02]), torch.tensor([0.0]), 0.01).item() == 0.0
     assert surface_loss(torch.tensor([0.0]), torch.tensor([0.0]), 0.01).item() == pytest.approx(0.01)
     assert surface_loss(torch.tensor([0.0]), torch.tensor([0.03]), 0.01).item() == pytest.approx(0.04)
+    # winding cap: nothing up to one full jump J, linear beyond (a second turn of the phase along n)
+    from deepcurrents.losses import winding_loss
+
+    f_minus, f_plus = torch.tensor([0.01, 0.02, 0.05]), torch.tensor([0.0, 0.0, 0.01])
+    assert winding_loss(f_minus, f_plus, 0.015).item() == pytest.approx((0.0 + 0.005 + 0.025) / 3)
 
 
 def test_surface_hinge_of_a_batch_by_hand():

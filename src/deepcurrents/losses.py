@@ -35,14 +35,28 @@ def surface_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, margin: float = 0.
     return torch.relu(margin - f_minus + f_plus).mean()
 
 
-def surface_hinge(f: Callable[[torch.Tensor], torch.Tensor], batch: dict[str, torch.Tensor],
-                  margin: float = 0.01) -> torch.Tensor:
-    """``surface_loss`` of a batch's surface samples: y = batch["surface_points"], n = batch["surface_normals"],
-    ε = batch["epsilon"], with f evaluated once on both sides, [y − εn | y + εn] stacked along the sample axis.
+def winding_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, jump: float) -> torch.Tensor:
+    """E[(f(y − εn) − f(y + εn) − J)^+]: f may drop by at most one full jump J = 4π·alpha_scale across the target
+    (beyond the paper). More is a second turn of the phase, which the reconstruction metric w(I − n nᵀ) does not
+    see (its gradient is along n) but the mass does: the dome by which a smooth network meets the surface hinge.
+    f_minus, f_plus (M,) → scalar."""
+    return torch.relu(f_minus - f_plus - jump).mean()
+
+
+def surface_values(f: Callable[[torch.Tensor], torch.Tensor],
+                   batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    """f on both sides of a batch's surface samples, evaluated once: y = batch["surface_points"],
+    n = batch["surface_normals"], ε = batch["epsilon"], [y − εn | y + εn] stacked along the sample axis.
 
     y: (M, 3) with f: (2M, 3) → (2M,) (one current), or (S, M, 3) with f: (S, 2M, 3) → (S, 2M) (a family,
-    one code per shape). → scalar."""
+    one code per shape). → (f(y − εn), f(y + εn)), each flattened."""
     offset = batch["epsilon"].unsqueeze(-1) * batch["surface_normals"]
     y = batch["surface_points"]
     f_minus, f_plus = f(torch.cat([y - offset, y + offset], dim=-2)).chunk(2, dim=-1)
-    return surface_loss(f_minus.flatten(), f_plus.flatten(), margin)
+    return f_minus.flatten(), f_plus.flatten()
+
+
+def surface_hinge(f: Callable[[torch.Tensor], torch.Tensor], batch: dict[str, torch.Tensor],
+                  margin: float = 0.01) -> torch.Tensor:
+    """``surface_loss`` of a batch's surface samples (``surface_values``). → scalar."""
+    return surface_loss(*surface_values(f, batch), margin)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import logging
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,7 +31,7 @@ from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
 from deepcurrents.eval.plots import plot_mesh_pairs
-from deepcurrents.losses import current_loss, surface_hinge
+from deepcurrents.losses import current_loss, surface_loss, surface_values, winding_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
 
@@ -85,6 +86,10 @@ class AutodecoderModule(DeepCurrentsModule):
             B_x = w_x (I − n nᵀ) leaves ω's component along the closest target normal free everywhere off Σ,
             so a current may keep mass there that costs nothing; this makes it cost. (On the CPU hands it did
             not remove the dome that the surface hinge leaves inside each hand; ``surface_margin`` did: README.)
+        winding_weight: weight of ``losses.winding_loss`` at the surface samples (beyond the paper; 0 = the paper):
+            f may drop by at most one full jump 4π·alpha_scale between y − εn and y + εn. The surface hinge asks
+            only for at least δ, and a smooth decoder meets it with a dome that overshoots (the phase winds again
+            along n, which the metric w(I − n nᵀ) does not see): the fog of the family's members (README).
         interpolation_weight: weight of the mass loss (Euclidean metric, B = I) of random interpolants between
             the batch's shapes (latent codes and boundaries blended per pair), so what lies between training
             shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
@@ -123,6 +128,7 @@ class AutodecoderModule(DeepCurrentsModule):
         surface_weight: float = 1.0,
         surface_margin: float = 0.01,
         mass_weight: float = 0.0,
+        winding_weight: float = 0.0,
         interpolation_weight: float = 0.0,
         interpolation_mix: str = "shared",
         interpolation_sampling: dict | None = None,
@@ -148,6 +154,8 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.latent_lr_factor={latent_lr_factor} must be positive.")
         if not mass_weight >= 0:
             raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
+        if not winding_weight >= 0:
+            raise ConfigError(f"model.winding_weight={winding_weight} must be non-negative.")
         check_latent_fit(**latent_fit_settings(latent_fit))  # refused before training, not at its end
         if interpolation_mix not in INTERPOLATION_MIXES:
             raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
@@ -304,9 +312,12 @@ class AutodecoderModule(DeepCurrentsModule):
             losses["mass_loss"] = current_loss(omega.flatten(0, 1))
             loss = loss + self.hparams.mass_weight * losses["mass_loss"]
         if "surface_points" in batch and self.hparams.surface_weight > 0:
-            losses["surface_loss"] = surface_hinge(lambda points: self.family.f(points, code), batch,
-                                                   self.hparams.surface_margin)
+            f_minus, f_plus = surface_values(lambda points: self.family.f(points, code), batch)
+            losses["surface_loss"] = surface_loss(f_minus, f_plus, self.hparams.surface_margin)
             loss = loss + self.hparams.surface_weight * losses["surface_loss"]
+            if self.hparams.winding_weight > 0:
+                losses["winding_loss"] = winding_loss(f_minus, f_plus, 4.0 * math.pi * self.family.alpha_scale)
+                loss = loss + self.hparams.winding_weight * losses["winding_loss"]
         if self.hparams.interpolation_weight > 0 and self.training:
             interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1],
                                                     batch.get("surface_points"))
