@@ -24,6 +24,13 @@ def spatial_gradient(f: torch.Tensor, x: torch.Tensor, create_graph: bool) -> to
     return grad
 
 
+def budget_fraction(key: str, value: object) -> float:
+    """``model.net.<key>``, a fraction of the training budget in [0, 1), or one sentence (ConfigError)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 1.0:
+        raise ConfigError(f"model.net.{key}={value} must be a fraction of the training budget in [0, 1).")
+    return float(value)
+
+
 class NeuralCurrent(nn.Module):
     """A single current ω = ∇f_θ + alpha_scale·α_Γ on [-1, 1]^d with a fixed boundary Γ.
 
@@ -100,19 +107,13 @@ class NeuralCurrent(nn.Module):
         if phase_harmonics and dim != 3:
             raise ConfigError(f"model.net.phase_harmonics={phase_harmonics} needs a 3D boundary (the harmonics are "
                               "those of the solid angle); use 0 for 2D curves.")
-        if isinstance(phase_harmonics_start, bool) or not isinstance(phase_harmonics_start, (int, float)) \
-                or not 0.0 <= phase_harmonics_start < 1.0:
-            raise ConfigError(f"model.net.phase_harmonics_start={phase_harmonics_start} must be a fraction of the "
-                              "training budget in [0, 1).")
+        budget_fraction("phase_harmonics_start", phase_harmonics_start)
         kappa = float(phase_sharpening) if isinstance(phase_sharpening, (int, float)) else float("nan")
         if isinstance(phase_sharpening, bool) or not 0.0 <= kappa < float("inf"):
             raise ConfigError(f"model.net.phase_sharpening={phase_sharpening!r} must be a concentration κ ≥ 0 "
                               "(0: off).")
-        if isinstance(phase_sharpening_start, bool) or not isinstance(phase_sharpening_start, (int, float)) \
-                or not 0.0 <= phase_sharpening_start < 1.0:
-            raise ConfigError(f"model.net.phase_sharpening_start={phase_sharpening_start} must be a fraction of the "
-                              "training budget in [0, 1).")
-        self.phase_sharpening, self.phase_sharpening_start = kappa, float(phase_sharpening_start)
+        self.phase_sharpening = kappa
+        self.phase_sharpening_start = budget_fraction("phase_sharpening_start", phase_sharpening_start)
         if kappa:  # the present κ and the level c (NaN until the sharpening opens): buffers, so checkpoints keep them
             self.register_buffer("sharpening", torch.tensor(0.0 if self.phase_sharpening_start > 0 else kappa))
             self.register_buffer("sharpening_level", torch.tensor(float("nan")))
