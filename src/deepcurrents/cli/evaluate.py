@@ -74,8 +74,16 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     # unset sizes and seed from the run's own evaluation settings, so `loss` matches its metrics.json
     evaluation = run_evaluation(module)
     seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
-    # the run's own estimate (its sample count, early stop and refinement near Γ), or exactly mass_samples
-    settings = mass_estimate_settings(evaluation)
+    mesh = None
+    if current.dim == 3:  # the mesh first: with evaluation.mass_refine_mesh the mass estimate refines its cells
+        if given is not None:
+            mesh = given
+        else:
+            mesh = extract_surface(current, **mesh_settings(module, cfg.shape, resolution=cfg.resolution)).mesh
+            mesh.export(out / "mesh.ply")
+    # the run's own estimate (its sample count, early stop and refinement near Γ and its mesh), or exactly
+    # mass_samples
+    settings = mass_estimate_settings(evaluation, mesh)
     if cfg.mass_samples is not None:
         settings.update(num_samples=int(cfg.mass_samples), rel_stderr=None)
     mass, stderr = mass_estimate(current, seed=seed, **settings)
@@ -94,14 +102,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
         # the run's own curve settings (a metric-trained curve keeps the level set: recon_2d_semicircle)
         metrics["curve_length"] = curve_length(extract_curve_2d(current, **dict(evaluation.get("curve") or {})))
     else:
-        if given is not None:
-            mesh = given
-            metrics["mesh"] = str(cfg.mesh)
-        else:
-            settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution)
-            mesh = extract_surface(current, **settings).mesh
-            mesh.export(out / "mesh.ply")
-            metrics["mesh"] = str(out / "mesh.ply")
+        metrics["mesh"] = str(cfg.mesh) if given is not None else str(out / "mesh.ply")
         loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
         metrics.update(mesh_summary(mesh, loops))
         if target is not None:

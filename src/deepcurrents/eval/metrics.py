@@ -184,12 +184,16 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
     return total / done, math.sqrt(paired) / done
 
 
-def mass_estimate_settings(evaluation: dict) -> dict[str, Any]:
+def mass_estimate_settings(evaluation: dict, mesh: trimesh.Trimesh | None = None) -> dict[str, Any]:
     """``mass_estimate``'s num_samples, rel_stderr and refine from a run's ``evaluation`` node (a checkpoint
-    written before a key existed gets that key's former behaviour: no stop, no refinement)."""
+    written before a key existed gets that key's former behaviour: no stop, no refinement), and with
+    ``evaluation.mass_refine_mesh`` its ``refine_points``: the vertices of ``mesh``, the current's own."""
     rel = evaluation.get("mass_rel_stderr")
+    points = None
+    if evaluation.get("mass_refine_mesh") and mesh is not None and len(mesh.vertices):
+        points = torch.as_tensor(np.asarray(mesh.vertices))
     return {"num_samples": int(evaluation.get("mass_samples", 1 << 20)), "rel_stderr": float(rel) if rel else None,
-            "refine": int(evaluation.get("mass_refine", 1))}
+            "refine": int(evaluation.get("mass_refine", 1)), "refine_points": points}
 
 
 def mesh_border_segments(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:

@@ -126,12 +126,9 @@ class CurrentModule(DeepCurrentsModule):
         self.current.eval()
         # the mesh first (3D): with evaluation.mass_refine_mesh the mass estimate refines the cells it crosses
         result = extract_surface(self.current, **self.mesh_options()) if self.dim == 3 else None
-        refine_points = None
-        if result is not None and self.evaluation.get("mass_refine_mesh") and len(result.mesh.vertices):
-            refine_points = torch.as_tensor(np.asarray(result.mesh.vertices))
         used: dict[str, int] = {}
         mass, stderr = mass_estimate(self.current, seed=int(self.evaluation.get("seed", 12345)), info=used,
-                                     refine_points=refine_points, **mass_estimate_settings(self.evaluation))
+                                     **mass_estimate_settings(self.evaluation, result.mesh if result else None))
         scale = mass_to_area(1.0, self.dim, self.current.alpha_scale)
         metrics: dict[str, Any] = {"loss": mass, **self.run_metrics(), "mass_samples": used["samples"],
                                    "mass_evaluations": used["evaluations"]}
