@@ -226,3 +226,15 @@ def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     assert best["best_value"] == pytest.approx(min(values))
     table = (sweep / "table.md").read_text().splitlines()
     assert len(table) == 4 and table[0].startswith("| run | mass_area |")  # header, rule, two trials
+
+
+def test_evaluate_draws_the_mass_as_the_run_did_with_the_mesh_cells_refined(tmp_path):
+    """evaluation.mass_refine_mesh=true: the run's final evaluation and the evaluate app both refine the cells of the
+    current's mesh (made first), so the app gives back the run's own loss."""
+    torch.manual_seed(0)
+    train(compose_cfg(DISK + ["evaluation.mass_refine_mesh=true"]), out_dir=tmp_path / "run")
+    trained = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    own = evaluate_checkpoint(app_cfg(EvaluateConfig, ckpt_path=str(tmp_path / "run" / "checkpoints" / "last.ckpt"),
+                                      out_dir=str(tmp_path / "own"), samples=2000))
+    assert own["loss"] == pytest.approx(trained["loss"], rel=1e-9)
+    assert trained["mass_evaluations"] > trained["mass_samples"]  # refined cells drew sub-samples
