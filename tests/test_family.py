@@ -616,8 +616,11 @@ def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp
         assert item["crispness"] > 0 and item["sheet_flux"] >= 0  # the fog and the sheet, both reported
     flux = [it["sheet_flux"] for it in report["items"] if it.get("sheet_flux") is not None]
     assert report["sheet_flux_mean"] == pytest.approx(np.mean(flux)) and report["sheet_flux_min"] == min(flux)
+    # the grid's corners (0, 0) and (1, 1) are the training shapes 0 and 2; (0, 1) and (1, 0) are not
+    assert [it["training_shape"] for it in report["items"]] == [True, False, False, True]
     report = interpolate(cfg(InterpolateConfig, mode="boundary", a=1, b=2, steps=3, out_dir=str(tmp_path / "b")))
     assert [it["t_boundary"] for it in report["items"]] == [0.0, 0.5, 1.0]
+    assert [it["training_shape"] for it in report["items"]] == [True, False, False]  # code of 1: only Γ_1 is shape 1
     ends = [read_curve_file(tmp_path / "b" / report["items"][k]["boundary"])[0] for k in (0, 2)]
     middle = read_curve_file(tmp_path / "b" / report["items"][1]["boundary"])[0]
     np.testing.assert_allclose(middle, 0.5 * (ends[0] + ends[1]), atol=1e-6)  # vertex by vertex
@@ -684,6 +687,24 @@ def test_grid_summary_counts_a_member_closed_only_when_its_whole_border_is_gamma
     summary = summarise(records)
     assert summary["meshes_closed_on_boundary"] == 1 and summary["empty_meshes"] == 1
     assert summary["boundary_error_max"] == 0.47
+
+
+def test_grid_summary_sets_the_fog_between_shapes_against_the_training_shapes_fog():
+    """fog_summary by hand: crispness / sheet_flux per member, and the training shapes' and the in-between members'
+    means apart (a member without a flux is left out of the ratios)."""
+    from deepcurrents.cli.families import summarise
+
+    loops = [np.zeros((4, 3))]
+    members = [(1.2, 1.0, True), (1.5, 0.75, False), (0.9, 0.6, False), (1.4, 0.7, True), (2.0, None, False)]
+    records = [{"boundary_loops_closed": 1, "boundary_error": 0.0, "_loops": loops, "crispness": c, "sheet_flux": f,
+                "training_shape": t} for c, f, t in members]
+    summary = summarise(records)
+    assert summary["crispness_per_flux_mean"] == pytest.approx((1.2 + 2.0 + 1.5 + 2.0) / 4)
+    assert summary["crispness_training_mean"] == pytest.approx(1.3)
+    assert summary["crispness_between_mean"] == pytest.approx(1.2)
+    assert summary["crispness_per_flux_training_mean"] == pytest.approx(1.6)
+    assert summary["crispness_per_flux_between_mean"] == pytest.approx(1.75)
+    assert "crispness_training_mean" not in summarise(records[1:3])  # no training shape among them: no split
 
 
 def test_a_member_closed_on_a_scrap_of_its_shape_counts_as_vanished():

@@ -88,6 +88,27 @@ def mark_vanished(records: list[dict[str, Any]], reference_areas: list[float]) -
         r["vanished"] = bool(r["area_fraction"] is not None and r["area_fraction"] < VANISHED_FRACTION)
 
 
+def _mean(values: list[float]) -> float | None:
+    return float(np.mean(values)) if values else None
+
+
+def fog_summary(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """``crispness_per_flux_mean``: the members' mean of crispness / sheet_flux, the fog per unit of the flux the
+    sheet carries (a crispness lowered by a weaker sheet does not lower it). Where some members are training shapes
+    (``training_shape``: a shape's own code and boundary) and some are not, ``crispness_training_mean`` and
+    ``crispness_between_mean`` (and the same per unit of flux) set the in-between members against the shapes
+    the model was fitted to: fog that interpolation adds shows as between > training."""
+    measured = [r for r in records if r.get("crispness") is not None and r.get("sheet_flux")]
+    summary: dict[str, Any] = {"crispness_per_flux_mean": _mean([r["crispness"] / r["sheet_flux"] for r in measured])}
+    training = [r for r in measured if r.get("training_shape")]
+    between = [r for r in measured if r.get("training_shape") is False]
+    if training and between:
+        for name, group in (("training", training), ("between", between)):
+            summary[f"crispness_{name}_mean"] = _mean([r["crispness"] for r in group])
+            summary[f"crispness_per_flux_{name}_mean"] = _mean([r["crispness"] / r["sheet_flux"] for r in group])
+    return summary
+
+
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     errors = [r["boundary_error"] for r in records if r["boundary_error"] is not None]
     crisp = [r["crispness"] for r in records if r.get("crispness") is not None]
@@ -101,6 +122,7 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
         "crispness_min": float(np.min(crisp)) if crisp else None,
         "sheet_flux_mean": float(np.mean(flux)) if flux else None,
         "sheet_flux_min": float(np.min(flux)) if flux else None,
+        **fog_summary(records),
         "meshes_closed_on_boundary": sum(closed_on_boundary(r) for r in records),
         **({"meshes_vanished": sum(bool(r["vanished"]) for r in records)} if records and "vanished" in records[0]
            else {}),

@@ -92,8 +92,11 @@ def interpolate(cfg: DictConfig) -> dict[str, Any]:
             t = tl if tb is None else tb
             stem, title = f"{mode}_{k:02d}", f"{mode} t = {t:.2f}"
         rec = mesh_and_measure(module, z, loops, [a, b], out_dir, stem, int(cfg.mass_samples), seed=k)
+        # the member is a training shape when its code and its boundary are the same shape's own
+        code_of = held if tl is None else {0.0: a, 1.0: b}.get(float(tl))
+        boundary_of = held if tb is None else {0.0: a, 1.0: b}.get(float(tb))
         rec.update({"t_latent": None if tl is None else float(tl), "t_boundary": None if tb is None else float(tb),
-                    "title": title})
+                    "title": title, "training_shape": code_of is not None and code_of == boundary_of})
         log.info("%s: boundary_error %s", stem, rec["boundary_error"])
         records.append(rec)
     # what a member's area is compared with (``vanished``): the two end shapes under their own code and boundary,
