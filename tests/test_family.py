@@ -337,8 +337,9 @@ def test_a_latent_learning_rate_factor_must_be_positive(family_dir, tmp_path):
 
 def test_winding_weight_adds_the_cap_on_the_drop_across_the_surface(family_dir, tmp_path):
     """model.winding_weight=w adds w·E[(f(y − εn) − f(y + εn) − 4π·alpha_scale)^+] at the batch's surface samples,
-    with f the member's own; a negative weight is refused in one sentence."""
-    from deepcurrents.losses import surface_values, winding_loss
+    with f the member's own, and with model.winding_reach=r at y ± rεn (the hinge staying at ±ε); a negative weight and
+    a reach below 1 are refused in one sentence."""
+    from deepcurrents.losses import surface_loss, surface_values, winding_loss
 
     cfg = compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.winding_weight=2.5"])
     datamodule, module = build(cfg)
@@ -357,6 +358,16 @@ def test_winding_weight_adds_the_cap_on_the_drop_across_the_surface(family_dir, 
     torch.testing.assert_close(losses["loss"], rest + 2.5 * expected)
     with pytest.raises(ConfigError, match=r"model.winding_weight=-1 must be non-negative"):
         build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.winding_weight=-1"]))
+    # model.winding_reach=r: the cap at y ± rεn, the hinge still at y ± εn
+    module.hparams.winding_reach = 2.0
+    losses = module.compute_losses(batch)
+    f_minus2, f_plus2 = surface_values(lambda x: module.family.f(x, code), {**batch, "epsilon": 2 * batch["epsilon"]})
+    expected2 = winding_loss(f_minus2, f_plus2, 4 * math.pi * module.family.alpha_scale)
+    assert float(expected2) > 0 and not torch.allclose(expected2, expected)
+    torch.testing.assert_close(losses["winding_loss"], expected2)
+    torch.testing.assert_close(losses["surface_loss"], surface_loss(f_minus, f_plus, cfg.model.surface_margin))
+    with pytest.raises(ConfigError, match=r"model.winding_reach=0.5 must be a finite number ≥ 1"):
+        build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.winding_reach=0.5"]))
 
 
 def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):

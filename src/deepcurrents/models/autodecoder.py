@@ -90,6 +90,10 @@ class AutodecoderModule(DeepCurrentsModule):
             f may drop by at most one full jump 4π·alpha_scale between y − εn and y + εn. The surface hinge asks
             only for at least δ, and a smooth decoder meets it with a dome that overshoots (the phase winds again
             along n, which the metric w(I − n nᵀ) does not see): the fog of the family's members (README).
+        winding_reach: the cap's offsets as a multiple r ≥ 1 of the hinge's ε: 1 reads the hinge's own f(y ± εn);
+            r > 1 evaluates f at y ± rεn as well (one more pass over the surface samples, f only), so a dome that
+            overshoots beyond ε is capped too. Across a part thinner than 2rε the far side's opposite step lowers
+            the drop, so the cap never asks for less than the sheet's own jump there.
         interpolation_weight: weight of the mass loss (Euclidean metric, B = I) of random interpolants between
             the batch's shapes (latent codes and boundaries blended per pair), so what lies between training
             shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
@@ -129,6 +133,7 @@ class AutodecoderModule(DeepCurrentsModule):
         surface_margin: float = 0.01,
         mass_weight: float = 0.0,
         winding_weight: float = 0.0,
+        winding_reach: float = 1.0,
         interpolation_weight: float = 0.0,
         interpolation_mix: str = "shared",
         interpolation_sampling: dict | None = None,
@@ -156,6 +161,9 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
         if not winding_weight >= 0:
             raise ConfigError(f"model.winding_weight={winding_weight} must be non-negative.")
+        if not (math.isfinite(winding_reach) and winding_reach >= 1):
+            raise ConfigError(f"model.winding_reach={winding_reach} must be a finite number ≥ 1 (a multiple of the "
+                              "surface loss's ε).")
         check_latent_fit(**latent_fit_settings(latent_fit))  # refused before training, not at its end
         if interpolation_mix not in INTERPOLATION_MIXES:
             raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
@@ -316,6 +324,10 @@ class AutodecoderModule(DeepCurrentsModule):
             losses["surface_loss"] = surface_loss(f_minus, f_plus, self.hparams.surface_margin)
             loss = loss + self.hparams.surface_weight * losses["surface_loss"]
             if self.hparams.winding_weight > 0:
+                reach = float(self.hparams.get("winding_reach", 1.0))  # checkpoints before the key: 1
+                if reach != 1.0:
+                    f_minus, f_plus = surface_values(lambda points: self.family.f(points, code),
+                                                     {**batch, "epsilon": reach * batch["epsilon"]})
                 losses["winding_loss"] = winding_loss(f_minus, f_plus, 4.0 * math.pi * self.family.alpha_scale)
                 loss = loss + self.hparams.winding_weight * losses["winding_loss"]
         if self.hparams.interpolation_weight > 0 and self.training:
