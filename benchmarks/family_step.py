@@ -6,7 +6,9 @@
 1. data: one batch (per mesh: augmentation with harmonic skinning + reconstruction samples), in-process —
    what each DataLoader worker does per step (so data.num_workers ≥ data time / step time keeps up);
 2. the training step (current loss + surface loss, double backward, Adam), also with
-   ``model.net.matmul_precision=medium`` (bf16 / TF32 internals in the decoder pass's products);
+   ``model.net.matmul_precision=medium`` (bf16 / TF32 internals in the decoder pass's products), and with the
+   winding cap (``model.winding_weight``) at the hinge's reach and at twice it (``model.winding_reach=2``: one more
+   pass of f over the surface samples);
 3. the decoder's first layer as implemented (code part once per shape) against the plain concatenation
    [code | RFF(x)] per point: time and peak memory of forward + double backward (CUDA: allocator peak;
    CPU: the size of the concatenated input the split avoids).
@@ -104,6 +106,29 @@ def main() -> None:
     medium_s = timed(step, device, args.repeats)
     module.family.matmul_precision = "highest"
 
+    def with_winding(weight: float, reach: float = 1.0):
+        def run():
+            module.hparams.winding_weight, module.hparams.winding_reach = weight, reach
+            step()
+        return run
+
+    # the cap reuses the hinge's values at reach 1 and takes one more f pass over the surface samples at reach 2;
+    # interleaved with the plain step, one of each per round, so that all see the same machine state
+    variants = {"plain": with_winding(0.0), "reach1": with_winding(5.0), "reach2": with_winding(5.0, 2.0)}
+    rounds = {name: [] for name in variants}
+    for run in variants.values():
+        run()
+    sync(device)
+    for _ in range(args.repeats):
+        for name, run in variants.items():
+            t = time.perf_counter()
+            run()
+            sync(device)
+            rounds[name].append(time.perf_counter() - t)
+    with_winding(0.0)()  # the plain module again for the first-layer timings
+    plain_s = statistics.median(rounds["plain"])
+    winding_s = {1.0: statistics.median(rounds["reach1"]) / plain_s, 2.0: statistics.median(rounds["reach2"]) / plain_s}
+
     fam = module.family
     code = fam.code(fam.latents(batch["index"]), batch["loops"], batch["loop_mask"]).detach().requires_grad_(True)
     x = batch["x"]
@@ -125,6 +150,7 @@ def main() -> None:
         "device": str(device), "machine": platform.node(), "cpu_threads": torch.get_num_threads(),
         "meshes": args.meshes, "samples_per_mesh": args.samples, "network": sizes,
         "data_seconds_per_batch": data_s, "train_step_seconds": step_s, "train_step_seconds_medium": medium_s,
+        "train_step_ratio_winding": winding_s[1.0], "train_step_ratio_winding_reach2": winding_s[2.0],
         "workers_to_keep_up": data_s / step_s,
         "first_layer": results,
         "first_layer_time_ratio_concat_over_split": results["concatenated"]["seconds"] / results["split"]["seconds"],
@@ -134,6 +160,8 @@ def main() -> None:
     print(f"  data (augment + sample) per batch   {data_s:8.3f} s   (one worker)")
     print(f"  training step                       {step_s:8.3f} s   → workers needed ≈ {data_s / step_s:.1f}")
     print(f"  … with model.net.matmul_precision=medium {medium_s:8.3f} s   ({step_s / medium_s:.2f}× faster)")
+    for reach, ratio in winding_s.items():
+        print(f"  … with model.winding_weight=5 model.winding_reach={reach:g}: {ratio:.2f}× the step (interleaved)")
     for name, r in results.items():
         mem = f"  peak {r['peak_bytes'] / 2**20:8.1f} MiB" if r["peak_bytes"] else ""
         print(f"  first layer {name:13s} ∇f + backward {r['seconds']:7.3f} s{mem}")
