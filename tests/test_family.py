@@ -366,8 +366,9 @@ def test_winding_weight_adds_the_cap_on_the_drop_across_the_surface(family_dir, 
     assert float(expected2) > 0 and not torch.allclose(expected2, expected)
     torch.testing.assert_close(losses["winding_loss"], expected2)
     torch.testing.assert_close(losses["surface_loss"], surface_loss(f_minus, f_plus, cfg.model.surface_margin))
-    with pytest.raises(ConfigError, match=r"model.winding_reach=0.5 must be a finite number ≥ 1"):
-        build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.winding_reach=0.5"]))
+    for bad in ("0.5", "nan", "far"):
+        with pytest.raises(ConfigError, match=rf"model.winding_reach={bad} must be a finite number ≥ 1"):
+            build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + [f"model.winding_reach={bad}"]))
 
 
 def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):

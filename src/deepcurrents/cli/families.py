@@ -114,13 +114,13 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     crisp = [r["crispness"] for r in records if r.get("crispness") is not None]
     flux = [r["sheet_flux"] for r in records if r.get("sheet_flux") is not None]
     return {
-        "boundary_error_mean": float(np.mean(errors)) if errors else None,
+        "boundary_error_mean": _mean(errors),
         "boundary_error_max": float(np.max(errors)) if errors else None,
         "empty_meshes": sum(r["boundary_error"] is None for r in records),
-        "crispness_mean": float(np.mean(crisp)) if crisp else None,
+        "crispness_mean": _mean(crisp),
         "crispness_max": float(np.max(crisp)) if crisp else None,
         "crispness_min": float(np.min(crisp)) if crisp else None,
-        "sheet_flux_mean": float(np.mean(flux)) if flux else None,
+        "sheet_flux_mean": _mean(flux),
         "sheet_flux_min": float(np.min(flux)) if flux else None,
         **fog_summary(records),
         "meshes_closed_on_boundary": sum(closed_on_boundary(r) for r in records),

@@ -92,8 +92,8 @@ class AutodecoderModule(DeepCurrentsModule):
             along n, which the metric w(I − n nᵀ) does not see): the fog of the family's members (README).
         winding_reach: the cap's offsets as a multiple r ≥ 1 of the hinge's ε: 1 reads the hinge's own f(y ± εn);
             r > 1 evaluates f at y ± rεn as well (one more pass over the surface samples, f only), so a dome that
-            overshoots beyond ε is capped too. Across a part thinner than 2rε the far side's opposite step lowers
-            the drop, so the cap never asks for less than the sheet's own jump there.
+            overshoots beyond ε is capped too. Where a part is thinner than 2rε the offsets reach its far side,
+            whose opposite step lowers the drop: the cap is looser there, never tighter than one jump.
         interpolation_weight: weight of the mass loss (Euclidean metric, B = I) of random interpolants between
             the batch's shapes (latent codes and boundaries blended per pair), so what lies between training
             shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
@@ -161,7 +161,8 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
         if not winding_weight >= 0:
             raise ConfigError(f"model.winding_weight={winding_weight} must be non-negative.")
-        if not (math.isfinite(winding_reach) and winding_reach >= 1):
+        if isinstance(winding_reach, bool) or not isinstance(winding_reach, (int, float)) \
+                or not (math.isfinite(winding_reach) and winding_reach >= 1):
             raise ConfigError(f"model.winding_reach={winding_reach} must be a finite number ≥ 1 (a multiple of the "
                               "surface loss's ε).")
         check_latent_fit(**latent_fit_settings(latent_fit))  # refused before training, not at its end
