@@ -320,3 +320,27 @@ def test_bad_input_on_the_command_line_exits_2_with_one_sentence(tmp_path, case,
 def test_the_suite_covers_at_least_forty_distinct_inputs():
     ids = [c[0] for c in TRAIN_CASES] + [c[0] for c in APP_CASES] + [c[0] for c in CLI_CASES]
     assert len(set(ids)) == len(ids) >= 40
+
+
+@pytest.mark.parametrize("value, minimum, strict, sentence", [
+    (-1, 0.0, False, "w=-1 must be non-negative."),
+    ("heavy", 0.0, False, "w=heavy must be non-negative."),
+    (True, 0.0, False, "w=True must be non-negative."),
+    (float("inf"), 0.0, False, "w=inf must be non-negative."),
+    (0, 0.0, True, "w=0 must be positive."),
+    (0.5, 1.0, False, "w=0.5 must be a finite number ≥ 1."),
+    (float("nan"), 1.0, False, "w=nan must be a finite number ≥ 1."),
+])
+def test_a_number_setting_out_of_range_or_not_a_number_is_one_sentence(value, minimum, strict, sentence):
+    from deepcurrents.errors import ConfigError, number_at_least
+
+    with pytest.raises(ConfigError) as info:
+        number_at_least("w", value, minimum, strict=strict)
+    assert str(info.value) == sentence
+
+
+def test_a_number_setting_in_range_comes_back_as_a_float():
+    from deepcurrents.errors import number_at_least
+
+    assert number_at_least("w", 0) == 0.0 and isinstance(number_at_least("w", 3), float)
+    assert number_at_least("w", 1, 1.0) == 1.0 and number_at_least("w", 1e-9, strict=True) == 1e-9

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 
@@ -24,3 +25,17 @@ def positive_int(name: str, value: Any, minimum: int = 1) -> int:
         what = "a positive integer" if minimum == 1 else f"an integer ≥ {minimum}"
         raise ConfigError(f"{name}={value!r} must be {what}.")
     return value
+
+
+def number_at_least(name: str, value: Any, minimum: float = 0.0, strict: bool = False) -> float:
+    """``value`` as a finite float ≥ ``minimum`` (> with ``strict``), or ConfigError naming the setting ``name``.
+    A string or a boolean is refused in the same sentence (``not value >= 0`` would raise a raw TypeError)."""
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) \
+        and (value > minimum if strict else value >= minimum)
+    if not ok:
+        if minimum == 0:
+            what = "positive" if strict else "non-negative"
+        else:
+            what = f"a finite number {'>' if strict else '≥'} {minimum:g}"
+        raise ConfigError(f"{name}={value} must be {what}.")
+    return float(value)

@@ -27,7 +27,7 @@ from deepcurrents.data.family import collate_shapes
 from deepcurrents.data.recon import ambient_options, ambient_sampler
 from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.data.targets import SURFACE_EPSILON, MeshTarget, target_sample
-from deepcurrents.errors import ConfigError, UserInputError, positive_int
+from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
 from deepcurrents.eval.plots import plot_mesh_pairs
@@ -151,20 +151,11 @@ class AutodecoderModule(DeepCurrentsModule):
         shape_names = list(shape_names)
         if len(shape_names) != num_shapes or len(loop_lengths) != num_shapes:
             raise ConfigError(f"model.num_shapes={num_shapes} does not match the {len(shape_names)} shape names.")
-        if not surface_weight >= 0:
-            raise ConfigError(f"model.surface_weight={surface_weight} must be non-negative.")
-        if not interpolation_weight >= 0:
-            raise ConfigError(f"model.interpolation_weight={interpolation_weight} must be non-negative.")
-        if not latent_lr_factor > 0:
-            raise ConfigError(f"model.latent_lr_factor={latent_lr_factor} must be positive.")
-        if not mass_weight >= 0:
-            raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
-        if not winding_weight >= 0:
-            raise ConfigError(f"model.winding_weight={winding_weight} must be non-negative.")
-        if isinstance(winding_reach, bool) or not isinstance(winding_reach, (int, float)) \
-                or not (math.isfinite(winding_reach) and winding_reach >= 1):
-            raise ConfigError(f"model.winding_reach={winding_reach} must be a finite number ≥ 1 (a multiple of the "
-                              "surface loss's ε).")
+        for key, value in (("surface_weight", surface_weight), ("interpolation_weight", interpolation_weight),
+                           ("mass_weight", mass_weight), ("winding_weight", winding_weight)):
+            number_at_least(f"model.{key}", value)
+        number_at_least("model.latent_lr_factor", latent_lr_factor, strict=True)
+        number_at_least("model.winding_reach", winding_reach, 1.0)  # a multiple of the surface loss's ε
         check_latent_fit(**latent_fit_settings(latent_fit))  # refused before training, not at its end
         if interpolation_mix not in INTERPOLATION_MIXES:
             raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
