@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import csv
 import logging
-import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -29,7 +28,7 @@ from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.data.targets import SURFACE_EPSILON, MeshTarget, target_sample
 from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
-from deepcurrents.eval.metrics import mesh_summary, unidirectional_chamfer
+from deepcurrents.eval.metrics import jump, mesh_summary, unidirectional_chamfer
 from deepcurrents.eval.plots import plot_mesh_pairs
 from deepcurrents.losses import current_loss, surface_loss, surface_values, winding_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
@@ -320,7 +319,7 @@ class AutodecoderModule(DeepCurrentsModule):
                 if reach != 1.0:
                     f_minus, f_plus = surface_values(lambda points: self.family.f(points, code),
                                                      {**batch, "epsilon": reach * batch["epsilon"]})
-                losses["winding_loss"] = winding_loss(f_minus, f_plus, 4.0 * math.pi * self.family.alpha_scale)
+                losses["winding_loss"] = winding_loss(f_minus, f_plus, jump(3) * self.family.alpha_scale)
                 loss = loss + self.hparams.winding_weight * losses["winding_loss"]
         if self.hparams.interpolation_weight > 0 and self.training:
             interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1],
