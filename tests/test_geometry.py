@@ -18,7 +18,7 @@ from deepcurrents.geometry import (
     solid_angle,
     trefoil,
 )
-from deepcurrents.geometry.polyline import polyline_hausdorff, project_to_segments
+from deepcurrents.geometry.polyline import polyline_hausdorff, project_to_segments, segment_distance
 
 
 def quadrature_biot_savart(points, loop, per_segment=400):
@@ -178,6 +178,8 @@ def test_project_to_segments_and_hausdorff_brute_force():
     dense = a[:, None] + t[None, :, None] * (b - a)[:, None]
     brute = np.linalg.norm(pts[:, None, None] - dense[None], axis=-1).min(axis=(1, 2))
     np.testing.assert_allclose(proj.distance.numpy(), brute, atol=1e-4)
+    np.testing.assert_allclose(segment_distance(pts, a, b), brute, atol=1e-4)  # libigl's tree, the same distances
+    np.testing.assert_allclose(segment_distance(pts, a, b), proj.distance.numpy(), rtol=1e-12, atol=1e-14)
     # concentric squares of half-widths 1 and 0.5: the farthest points are the corners, √0.5 apart
     sq = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
     h = polyline_hausdorff(sq, np.roll(sq, -1, 0), 0.5 * sq, 0.5 * np.roll(sq, -1, 0), spacing=1e-3)

@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 
 from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.errors import ConfigError
+from deepcurrents.geometry.polyline import closed_loop_segments, segment_distance
 from deepcurrents.geometry.topology import border_edges
 
 # the paper's surface-loss offsets ε ~ U[0.0199, 0.0201]: ε = 0.02 ± 0.5 %
@@ -137,21 +138,13 @@ def reconstruction_metric(normals: torch.Tensor, on_boundary: torch.Tensor,
 
 
 def distance_to_loops(x, loops: list[np.ndarray]) -> np.ndarray:
-    """Euclidean distance |x − proj_Γ(x)| to closed polygonal loops, exact, through libigl's AABB tree on
-    Γ's segments (a few times faster than the brute-force ``project_to_segments`` for thousands of points).
+    """Euclidean distance |x − proj_Γ(x)| to closed polygonal loops, exact (``segment_distance``: libigl's AABB
+    tree on Γ's segments, a few times faster than the brute-force ``project_to_segments`` for thousands of points).
 
     x (N, 3), loops [(M_i, 3)] → (N,) float64.
     """
-    x = _as_numpy(x, np.float64)
-    if len(x) == 0:
-        return np.zeros(0)
-    verts = np.ascontiguousarray(np.concatenate(loops).astype(np.float64))
-    sizes = [len(lp) for lp in loops]
-    first = np.repeat(np.cumsum([0] + sizes[:-1]), sizes)
-    local = np.concatenate([np.arange(n) for n in sizes])
-    edges = np.stack([first + local, first + (local + 1) % np.repeat(sizes, sizes)], 1).astype(np.int64)
-    d2, _, _ = igl.point_mesh_squared_distance(x, verts, edges)
-    return np.sqrt(np.maximum(d2, 0.0))
+    starts, ends, _ = closed_loop_segments(loops)
+    return segment_distance(_as_numpy(x, np.float64), starts, ends)
 
 
 def boundary_weights(x: torch.Tensor, loops: list[np.ndarray], sigma: float,
