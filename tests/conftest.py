@@ -8,9 +8,15 @@ Tests that train for more than a few seconds carry `@pytest.mark.slow`: `pytest 
 
 from __future__ import annotations
 
+import importlib
+import io
+import logging
 import os
+import sys
+import traceback
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr, redirect_stdout
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +93,50 @@ def app_cfg(schema: type, **values: Any) -> DictConfig:
     return cfg
 
 
+@dataclass
+class CommandResult:
+    """What a command left: its exit status and what it printed."""
+
+    returncode: int
+    stdout: str
+    stderr: str
+
+
+def run_command_in_process(module: str, args: Sequence[str], cwd: Path) -> CommandResult:
+    """``python -m <module> <args>`` run in this process (``module``'s Hydra ``main``, ``sys.argv`` as the shell
+    gives it, from ``cwd``): the command line's code path without a new interpreter's ~8 s of imports.
+
+    An exception that escapes is written to stderr as the interpreter would (exit status 1), so a test's
+    "no Traceback" check still sees it. Hydra's global state and the logging set-up it installs are undone
+    afterwards, so later tests in this process start clean. (One real subprocess per kind of entry point
+    stays in test_apps/test_train.)"""
+    main = importlib.import_module(module).main
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+    out, err = io.StringIO(), io.StringIO()
+    argv, here = sys.argv, os.getcwd()
+    code = 0
+    GlobalHydra.instance().clear()
+    try:
+        sys.argv = [module, *args]
+        os.chdir(cwd)
+        with redirect_stdout(out), redirect_stderr(err):
+            try:
+                main()
+            except SystemExit as stop:
+                code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else 1)
+            except Exception:  # noqa: BLE001 -- what the interpreter would print
+                traceback.print_exc(file=err)
+                code = 1
+    finally:
+        sys.argv = argv
+        os.chdir(here)
+        GlobalHydra.instance().clear()
+        root.handlers[:] = handlers
+        root.setLevel(level)
+    return CommandResult(code, out.getvalue(), err.getvalue())
+
+
 class Payload:
     """Unpickling this object runs a shell command (what a crafted checkpoint would do)."""
 
@@ -126,6 +176,14 @@ def parts_root(tmp_path_factory) -> Path:
     categories = ("heads", "hands", "forearms", "arms", "torsos", "feet")
     write_parts({c: ([cap.vertices], cap.faces, 1.0) for c in categories}, root, "anny")
     return root
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under pytest-xdist (`make test` runs `-n auto`) each worker gets its share of the cores for torch: workers
+    that each spun a thread per core would oversubscribe them, and contended threads run slower than one."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "0"))
+    if workers > 1:
+        torch.set_num_threads(max(1, (os.cpu_count() or 1) // workers))
 
 
 @pytest.fixture(autouse=True)

@@ -6,9 +6,6 @@ run a command is refused by every app in one sentence (exit status 2) and runs n
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -16,7 +13,17 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, Payload, app_cfg, compose_cfg, spherical_cap
+from conftest import (
+    QUIET_CPU,
+    ROOT,
+    TINY_EVAL,
+    TINY_NET,
+    Payload,
+    app_cfg,
+    compose_cfg,
+    run_command_in_process,
+    spherical_cap,
+)
 from omegaconf import OmegaConf
 
 from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
@@ -151,16 +158,13 @@ def test_crafted_checkpoint_is_refused_in_process(crafted):
     assert not marker.exists()
 
 
-@pytest.mark.slow  # five app processes (about 10 s each to start on a busy 2-core machine)
 @pytest.mark.parametrize("app, args", [
     ("render", []), ("extract", []), ("evaluate", []), ("interpolate", []), ("generate", ["curve=circle"]),
 ])
 def test_crafted_checkpoint_is_refused_by_every_app(crafted, tmp_path, app, args):
     path, marker = crafted
-    proc = subprocess.run([sys.executable, "-m", f"deepcurrents.{app}", f"ckpt_path={path}",
-                           f"out_dir={tmp_path / 'out'}", *args],
-                          capture_output=True, text=True, cwd=ROOT, timeout=300,
-                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+    proc = run_command_in_process(f"deepcurrents.{app}", [f"ckpt_path={path}", f"out_dir={tmp_path / 'out'}", *args],
+                                  cwd=ROOT)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "Traceback" not in proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import ROOT, compose_cfg
+from conftest import ROOT, compose_cfg, run_command_in_process
 from omegaconf import OmegaConf
 from scipy.spatial.transform import Rotation
 
@@ -598,11 +598,6 @@ def brute_force_border_hausdorff(mesh: trimesh.Trimesh, loops: list[np.ndarray],
     return float(max(d.max(), e.max()))
 
 
-def run_module(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=ROOT,
-                          env={**os.environ, "PYTHONWARNINGS": "ignore"})
-
-
 @pytest.mark.slow
 def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp_path):
     from deepcurrents.cli.generate import GenerateConfig, generate
@@ -664,7 +659,8 @@ def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp
     with pytest.raises(ConfigError, match="mode='sideways' must be one of"):
         interpolate(cfg(InterpolateConfig, mode="sideways", out_dir=str(tmp_path / "x")))
     # ... and on the command line: the sentence, exit status 2, no traceback
-    proc = run_module("deepcurrents.interpolate", f"ckpt_path={tmp_path / 'edited_rim.obj'}", "a=0", "b=1")
+    proc = run_command_in_process("deepcurrents.interpolate",
+                                  [f"ckpt_path={tmp_path / 'edited_rim.obj'}", "a=0", "b=1"], cwd=ROOT)
     assert proc.returncode == 2 and "error: ckpt_path=" in proc.stderr and "Traceback" not in proc.stderr
 
 

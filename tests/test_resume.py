@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, Payload, compose_cfg
+from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, Payload, compose_cfg, run_command_in_process
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.experiments import run_dir
@@ -46,9 +46,7 @@ def start_cli(args: list[str]) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def run_cli(args: list[str], timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT, env=ENV,
-                          capture_output=True, text=True, timeout=timeout)
+TRAIN_MODULE = "deepcurrents.cli.train"  # `python train.py …`, run in this process by run_command_in_process
 
 
 def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 180) -> None:
@@ -101,9 +99,8 @@ def test_kill_9_then_auto_resume_equals_the_uninterrupted_run(tmp_path, uninterr
     killed_at = torch.load(out / "checkpoints/last.ckpt", weights_only=True)["global_step"]
     assert 0 < killed_at < STEPS and not (out / "metrics.json").exists()
     assert (out / run_dir.LOCK_NAME).exists()  # left behind by the dead process: taken over below
-    resumed = run_cli([*RUN, f"hydra.run.dir={out}", "ckpt_path=auto"])
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
-    assert json.loads((out / "metrics.json").read_text())["steps"] == STEPS
+    resumed = train(compose_cfg([*RUN, "ckpt_path=auto"]), out_dir=out)  # in this process: what is on disk counts
+    assert resumed["steps"] == STEPS and json.loads((out / "metrics.json").read_text())["steps"] == STEPS
     assert_same_weights(uninterrupted, out / "checkpoints" / "last.ckpt")
     assert not (out / run_dir.LOCK_NAME).exists()
 
@@ -122,8 +119,7 @@ def test_preemption_signal_writes_a_checkpoint_and_resume_reaches_the_same_weigh
     stopped_at = torch.load(out / "checkpoints/last.ckpt", weights_only=True)["global_step"]
     assert 0 < stopped_at < STEPS and not (out / "metrics.json").exists()
     assert not (out / run_dir.LOCK_NAME).exists()  # released on the way out
-    resumed = run_cli([*RUN, f"hydra.run.dir={out}", "ckpt_path=auto"])
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert train(compose_cfg([*RUN, "ckpt_path=auto"]), out_dir=out)["steps"] == STEPS
     assert_same_weights(uninterrupted, out / "checkpoints" / "last.ckpt")
 
 
@@ -195,7 +191,8 @@ def test_crafted_checkpoint_runs_nothing_on_resume(tmp_path, trefoil_ckpt):
     message = refused(tmp_path, [f"ckpt_path={evil}"], "could run code")
     assert "posix.system" in message or "os.system" in message
     assert not marker.exists()
-    proc = run_cli([*TINY, "trainer.max_steps=4", f"ckpt_path={evil}", f"hydra.run.dir={tmp_path / 'cli'}"])
+    proc = run_command_in_process(TRAIN_MODULE, [*TINY, "trainer.max_steps=4", f"ckpt_path={evil}",
+                                                 f"hydra.run.dir={tmp_path / 'cli'}"], cwd=ROOT)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert [line for line in proc.stderr.splitlines() if line.startswith("error:")][0].count("could run code")
     assert not marker.exists()
@@ -205,7 +202,8 @@ def test_crafted_checkpoint_runs_nothing_on_resume(tmp_path, trefoil_ckpt):
 def test_cli_resume_errors_exit_2_without_traceback(tmp_path):
     text = tmp_path / "notes.ckpt"
     text.write_text("not a checkpoint\n")
-    proc = run_cli([*TINY, f"ckpt_path={text}", f"hydra.run.dir={tmp_path / 'run'}"])
+    proc = run_command_in_process(TRAIN_MODULE, [*TINY, f"ckpt_path={text}", f"hydra.run.dir={tmp_path / 'run'}"],
+                                  cwd=ROOT)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "notes.ckpt" in errors[0] and "truncated or corrupt" in errors[0]
