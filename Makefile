@@ -37,12 +37,16 @@ run: setup
 	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu trainer.max_steps=$(RUN_STEPS) hydra.run.dir=$(RUN_DIR)
 	@echo "Results in $(RUN_DIR): metrics.json, mesh.ply, mesh.png, render.png, checkpoints/last.ckpt"
 
-# every test; `make test-fast` skips the ones marked slow (under a minute on 2 idle cores)
+# every test, on one pytest-xdist worker per core (at most TEST_WORKERS_MAX: each worker holds torch and Lightning,
+# ~1 GB); `make test TEST_WORKERS=0` runs them in one process. `make test-fast` skips the ones marked slow.
+TEST_WORKERS ?= auto
+TEST_WORKERS_MAX ?= 4
+PYTEST := $(BIN)/python -m pytest -q -n $(TEST_WORKERS) --maxprocesses=$(TEST_WORKERS_MAX)
 test: setup $(ANNY_STAMP)
-	$(BIN)/python -m pytest -q
+	$(PYTEST)
 
 test-fast: setup
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(PYTEST) -m "not slow"
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks train.py
