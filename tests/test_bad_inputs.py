@@ -157,6 +157,12 @@ TRAIN_CASES = [
     ("trainer precision unknown", overrides("experiment=minimal_trefoil", "trainer.precision=bogus"),
      "trainer.precision=bogus"),
     ("family folder missing", overrides("experiment=latent_hands", "data.path=/nonexistent/hands"), "hands"),
+    # a word where a number belongs: one sentence, not a TypeError from comparing a string (errors.number_at_least)
+    ("surface weight a word", overrides("experiment=recon_hand", "model.surface_weight=heavy"),
+     r"model\.surface_weight=heavy must be non-negative"),
+    ("sampling power a word", overrides("experiment=minimal_trefoil", "data.sampling.kind=importance",
+                                        "+data.sampling.power=steep"), r"data\.sampling\.power=steep"),
+    ("family shift a word", overrides("experiment=latent_hands", "data.shift=far"), r"data\.shift=far"),
     # checkpoints to resume from
     ("resume missing", overrides("experiment=minimal_trefoil", "ckpt_path=/nonexistent/last.ckpt"), "does not exist"),
     ("resume text file", lambda tmp: ["experiment=minimal_trefoil",

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, number_at_least
 from deepcurrents.geometry.harmonic import HarmonicSkinning
 
 log = logging.getLogger(__name__)
@@ -63,8 +63,7 @@ class AugmentationRanges:
         lo, hi = self.scale
         if not 0 < lo <= hi:
             raise ConfigError(f"data.scale_range={list(self.scale)} must be [low, high] with 0 < low ≤ high.")
-        if not self.shift >= 0:
-            raise ConfigError(f"data.shift={self.shift} must be non-negative.")
+        number_at_least("data.shift", self.shift)
         if not 0 < self.bound <= 1:
             raise ConfigError(f"data.bound={self.bound} must be in (0, 1] (the domain is [-1, 1]^3).")
         lo, hi = self.mesh_scale

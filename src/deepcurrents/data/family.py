@@ -42,7 +42,7 @@ from deepcurrents.data.targets import (
     surface_epsilon_range,
     target_sample,
 )
-from deepcurrents.errors import ConfigError, UserInputError, positive_int
+from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
 from deepcurrents.geometry.meshes import read_mesh
@@ -307,15 +307,17 @@ class FamilyDataModule(L.LightningDataModule):
         for key, value in (("scale_range", scale_range), ("mesh_scale_range", mesh_scale_range)):
             if len(value) != 2:
                 raise ConfigError(f"data.{key}={list(value)} must be [low, high].")
-        if not boundary_sigma > 0:
-            raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
+        number_at_least("data.boundary_sigma", boundary_sigma, strict=True)
         if metric_band is not None and (isinstance(metric_band, bool) or not isinstance(metric_band, (int, float))
                                         or not metric_band > 0):
             raise ConfigError(f"data.metric_band={metric_band!r} must be a positive distance (null: the paper's "
                               "metric).")
-        self.ranges = AugmentationRanges(float(rotation_deg), (float(scale_range[0]), float(scale_range[1])),
-                                         float(shift), float(bound),
-                                         (float(mesh_scale_range[0]), float(mesh_scale_range[1])))
+        # numbers first (a word would be a raw ValueError from float()); the ranges are checked by AugmentationRanges
+        scales = {key: tuple(number_at_least(f"data.{key}", v, strict=True) for v in value)
+                  for key, value in (("scale_range", scale_range), ("mesh_scale_range", mesh_scale_range))}
+        self.ranges = AugmentationRanges(number_at_least("data.rotation_deg", rotation_deg), scales["scale_range"],
+                                         number_at_least("data.shift", shift),
+                                         number_at_least("data.bound", bound, strict=True), scales["mesh_scale_range"])
         train, kept_out = split_held_out(family_files(path), max_meshes, held_out)
         # loaded together: held-out loops are matched to the same reference (the first training mesh)
         loaded = load_family(train + kept_out, bound=self.ranges.bound)

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, number_at_least
 
 SAMPLING_KINDS = ("uniform", "sobol", "importance")
 
@@ -71,8 +71,7 @@ class AmbientSampler:
         if not 0.0 < uniform_fraction <= 1.0:
             raise ConfigError(f"data.sampling.uniform_fraction={uniform_fraction} must be in (0, 1] "
                               "(a uniform share bounds the importance weights).")
-        if not power >= 0:
-            raise ConfigError(f"data.sampling.power={power} must be non-negative.")
+        number_at_least("data.sampling.power", power)
         self.dim, self.kind, self.resolution = dim, kind, resolution
         self.uniform_fraction, self.power = float(uniform_fraction), float(power)
         self.generator = torch.Generator().manual_seed(seed)
@@ -231,8 +230,7 @@ class NearTargetSampler:
 
     def __init__(self, anchors: np.ndarray, sigma: float, uniform_fraction: float = 0.5, domain: float = 1.0,
                  radius: float = 3.0, weighted: bool = True):
-        if not sigma > 0:
-            raise ConfigError(f"data.sampling.near_sigma={sigma} must be positive.")
+        number_at_least("data.sampling.near_sigma", sigma, strict=True)
         if not 0.0 < uniform_fraction <= 1.0:
             raise ConfigError(f"data.sampling.uniform_fraction={uniform_fraction} must be in (0, 1] "
                               "(a uniform share bounds the importance weights).")

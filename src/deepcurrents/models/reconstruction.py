@@ -12,7 +12,7 @@ import torch
 import trimesh
 from scipy.spatial import cKDTree
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import number_at_least
 from deepcurrents.eval.meshing import flux_sign, region_of_interest
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface, unidirectional_chamfer
 from deepcurrents.eval.plots import MeshView, mesh_view, plot_mesh
@@ -113,12 +113,9 @@ class ReconstructionModule(CurrentModule):
                  surface_margin: float = 0.01, grid_encoding: dict | None = None, mass_weight: float = 0.0):
         super().__init__(boundary, net, optim, rff, evaluation, grid_encoding)
         self.save_hyperparameters(ignore=["target"])  # the geometry lives in buffers, not in hparams
-        if not surface_weight >= 0 or not surface_margin > 0:
-            raise ConfigError("model.surface_weight must be ≥ 0 and model.surface_margin positive.")
-        if not mass_weight >= 0:
-            raise ConfigError(f"model.mass_weight={mass_weight} must be non-negative.")
-        self.surface_weight, self.surface_margin = float(surface_weight), float(surface_margin)
-        self.mass_weight = float(mass_weight)
+        self.surface_weight = number_at_least("model.surface_weight", surface_weight)
+        self.surface_margin = number_at_least("model.surface_margin", surface_margin, strict=True)
+        self.mass_weight = number_at_least("model.mass_weight", mass_weight)
         TargetGeometry.register(self, target)
 
     def compute_losses(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
