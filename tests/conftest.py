@@ -132,6 +132,8 @@ def run_command_in_process(module: str, args: Sequence[str], cwd: Path) -> Comma
         sys.argv = argv
         os.chdir(here)
         GlobalHydra.instance().clear()
+        for handler in set(root.handlers) - set(handlers):  # Hydra's: the run's log file, the captured stdout
+            handler.close()
         root.handlers[:] = handlers
         root.setLevel(level)
     return CommandResult(code, out.getvalue(), err.getvalue())
