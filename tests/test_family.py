@@ -370,28 +370,6 @@ def test_winding_weight_adds_the_cap_on_the_drop_across_the_surface(family_dir, 
     for bad in ("0.5", "nan", "far"):
         with pytest.raises(ConfigError, match=rf"model.winding_reach={bad} must be a finite number ≥ 1"):
             build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + [f"model.winding_reach={bad}"]))
-    # model.winding_floor=φ: the band φJ ≤ drop ≤ J at the cap's offsets, written out here from the f values
-    module.hparams.winding_floor = 0.9
-    losses = module.compute_losses(batch)
-    full = 4 * math.pi * module.family.alpha_scale
-    drop = f_minus2 - f_plus2
-    band = (torch.relu(drop - full) + torch.relu(0.9 * full - drop)).mean()
-    assert float(band) > float(expected2)
-    torch.testing.assert_close(losses["winding_loss"], band)
-    for bad, sentence in (("1", "must be below 1"), ("-0.1", "must be non-negative"), ("most", "must be non-negative")):
-        with pytest.raises(ConfigError, match=rf"model.winding_floor={bad} {sentence}"):
-            build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + [f"model.winding_floor={bad}"]))
-
-
-def test_winding_loss_by_hand():
-    """Drops 0, J/2, J, 2J: the cap charges only 2J's excess J; with floor 0.9 also 0.9J and 0.4J short."""
-    from deepcurrents.losses import winding_loss
-
-    full = 0.5
-    f_plus = torch.zeros(4, dtype=torch.float64)
-    f_minus = torch.tensor([0.0, 0.5, 1.0, 2.0], dtype=torch.float64) * full
-    assert float(winding_loss(f_minus, f_plus, full)) == pytest.approx(full / 4)
-    assert float(winding_loss(f_minus, f_plus, full, floor=0.9)) == pytest.approx((0.9 + 0.4 + 0 + 1) * full / 4)
 
 
 def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):

@@ -35,17 +35,12 @@ def surface_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, margin: float = 0.
     return torch.relu(margin - f_minus + f_plus).mean()
 
 
-def winding_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, jump: float, floor: float = 0.0) -> torch.Tensor:
+def winding_loss(f_minus: torch.Tensor, f_plus: torch.Tensor, jump: float) -> torch.Tensor:
     """E[(f(y − εn) − f(y + εn) − J)^+]: f may drop by at most one full jump J = 4π·alpha_scale across the target
     (beyond the paper). More is a second turn of the phase, which the reconstruction metric w(I − n nᵀ) does not
     see (its gradient is along n) but the mass does: the dome by which a smooth network meets the surface hinge.
-    ``floor`` > 0 adds E[(floor·J − drop)^+]: the drop must also reach that share of the jump, so the band
-    floor·J ≤ drop ≤ J keeps a full sheet where the cap alone let it thin. f_minus, f_plus (M,) → scalar."""
-    drop = f_minus - f_plus
-    loss = torch.relu(drop - jump)
-    if floor > 0:
-        loss = loss + torch.relu(floor * jump - drop)
-    return loss.mean()
+    f_minus, f_plus (M,) → scalar."""
+    return torch.relu(f_minus - f_plus - jump).mean()
 
 
 def surface_values(f: Callable[[torch.Tensor], torch.Tensor],

@@ -93,8 +93,6 @@ class AutodecoderModule(DeepCurrentsModule):
             r > 1 evaluates f at y ± rεn as well (one more pass over the surface samples, f only), so a dome that
             overshoots beyond ε is capped too. Where a part is thinner than 2rε the offsets reach its far side,
             whose opposite step lowers the drop: the cap is looser there, never tighter than one jump.
-        winding_floor: a share φ < 1 of the jump that the drop at the cap's offsets must reach as well
-            (``losses.winding_loss``; 0 = no floor): φJ ≤ drop ≤ J, a full sheet within ±rε.
         interpolation_weight: weight of the mass loss (Euclidean metric, B = I) of random interpolants between
             the batch's shapes (latent codes and boundaries blended per pair), so what lies between training
             shapes is itself a near-minimal current (beyond the paper; 0 = the paper).
@@ -135,7 +133,6 @@ class AutodecoderModule(DeepCurrentsModule):
         mass_weight: float = 0.0,
         winding_weight: float = 0.0,
         winding_reach: float = 1.0,
-        winding_floor: float = 0.0,
         interpolation_weight: float = 0.0,
         interpolation_mix: str = "shared",
         interpolation_sampling: dict | None = None,
@@ -158,9 +155,6 @@ class AutodecoderModule(DeepCurrentsModule):
             number_at_least(f"model.{key}", value)
         number_at_least("model.latent_lr_factor", latent_lr_factor, strict=True)
         number_at_least("model.winding_reach", winding_reach, 1.0)  # a multiple of the surface loss's ε
-        if number_at_least("model.winding_floor", winding_floor) >= 1:
-            raise ConfigError(f"model.winding_floor={winding_floor} must be below 1 (a share of the jump, which the "
-                              "cap keeps the drop under).")
         check_latent_fit(**latent_fit_settings(latent_fit))  # refused before training, not at its end
         if interpolation_mix not in INTERPOLATION_MIXES:
             raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
@@ -325,8 +319,7 @@ class AutodecoderModule(DeepCurrentsModule):
                 if reach != 1.0:
                     f_minus, f_plus = surface_values(lambda points: self.family.f(points, code),
                                                      {**batch, "epsilon": reach * batch["epsilon"]})
-                losses["winding_loss"] = winding_loss(f_minus, f_plus, jump(3) * self.family.alpha_scale,
-                                                      float(self.hparams.get("winding_floor", 0.0)))
+                losses["winding_loss"] = winding_loss(f_minus, f_plus, jump(3) * self.family.alpha_scale)
                 loss = loss + self.hparams.winding_weight * losses["winding_loss"]
         if self.hparams.interpolation_weight > 0 and self.training:
             interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1],
