@@ -372,6 +372,16 @@ def test_winding_weight_adds_the_cap_on_the_drop_across_the_surface(family_dir, 
             build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + [f"model.winding_reach={bad}"]))
 
 
+def test_winding_loss_by_hand():
+    """Drops 0, J/2, J, 2J across the target: only 2J's excess J is charged, a mean of J/4."""
+    from deepcurrents.losses import winding_loss
+
+    full = 0.5
+    f_plus = torch.zeros(4, dtype=torch.float64)
+    f_minus = torch.tensor([0.0, 0.5, 1.0, 2.0], dtype=torch.float64) * full
+    assert float(winding_loss(f_minus, f_plus, full)) == pytest.approx(full / 4)
+
+
 def test_surface_epsilon_sets_the_surface_offsets_and_bad_values_are_refused(family_dir):
     """data.surface_epsilon=ε: the surface loss's offsets ε ~ U[0.995 ε, 1.005 ε] (the paper's 0.02 gives its
     U[0.0199, 0.0201]); a range [min, max] (a list from the config) gives each sample a step of it; they reach the
