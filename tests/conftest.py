@@ -93,6 +93,9 @@ def app_cfg(schema: type, **values: Any) -> DictConfig:
     return cfg
 
 
+TRAIN_COMMAND = "deepcurrents.cli.train"  # the module whose main `python train.py …` runs
+
+
 @dataclass
 class CommandResult:
     """What a command left: its exit status and what it printed."""

@@ -12,7 +12,16 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import QUIET_CPU, TINY_EVAL, TINY_NET, app_cfg, compose_cfg, run_command_in_process, spherical_cap
+from conftest import (
+    QUIET_CPU,
+    TINY_EVAL,
+    TINY_NET,
+    TRAIN_COMMAND,
+    app_cfg,
+    compose_cfg,
+    run_command_in_process,
+    spherical_cap,
+)
 
 from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
 from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
@@ -285,17 +294,16 @@ def test_bad_app_input_is_one_sentence_and_writes_nothing(request, tmp_path, cas
 
 
 # ------------------------------------------------------------------------ the same on the command line
-TRAIN = "deepcurrents.cli.train"  # `python train.py …` is this module's main
 CLI_CASES = [
-    ("train: curve with two vertices", lambda tmp: (TRAIN, [
+    ("train: curve with two vertices", lambda tmp: (TRAIN_COMMAND, [
         "experiment=minimal_curve", "logger=none",
         f"data.curve={write(tmp / 'two.txt', '0 0 0' + chr(10) + '0.1 0 0')}", f"hydra.run.dir={tmp / 'run'}"]),
      "two.txt"),
-    ("train: closed mesh", lambda tmp: (TRAIN, [
+    ("train: closed mesh", lambda tmp: (TRAIN_COMMAND, [
         "experiment=recon_mesh", "logger=none",
         f"data.mesh={export(trimesh.creation.icosphere(1, radius=0.4), tmp / 'ball.ply')}",
         f"hydra.run.dir={tmp / 'run'}"]), "ball.ply"),
-    ("train: learning rate", lambda tmp: (TRAIN, [
+    ("train: learning rate", lambda tmp: (TRAIN_COMMAND, [
         "experiment=minimal_trefoil", "logger=none", "model.optim.lr=-1", f"hydra.run.dir={tmp / 'run'}"]),
      "model.optim.lr"),
     ("extract: text checkpoint", lambda tmp: (

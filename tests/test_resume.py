@@ -15,7 +15,16 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import QUIET_CPU, ROOT, TINY_EVAL, TINY_NET, Payload, compose_cfg, run_command_in_process
+from conftest import (
+    QUIET_CPU,
+    ROOT,
+    TINY_EVAL,
+    TINY_NET,
+    TRAIN_COMMAND,
+    Payload,
+    compose_cfg,
+    run_command_in_process,
+)
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.experiments import run_dir
@@ -44,9 +53,6 @@ def assert_same_weights(a: Path, b: Path) -> None:
 def start_cli(args: list[str]) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, str(ROOT / "train.py"), *args], cwd=ROOT, env=ENV,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-TRAIN_MODULE = "deepcurrents.cli.train"  # `python train.py …`, run in this process by run_command_in_process
 
 
 def wait_for(path: Path, proc: subprocess.Popen, timeout: float = 180) -> None:
@@ -181,7 +187,6 @@ def test_resume_with_another_model_boundary_or_size_is_one_sentence(tmp_path, tr
                        f"ckpt_path={first / 'checkpoints/last.ckpt'}"], "another boundary")
 
 
-@pytest.mark.slow
 def test_crafted_checkpoint_runs_nothing_on_resume(tmp_path, trefoil_ckpt):
     marker = tmp_path / "MARKER"
     evil = tmp_path / "evil.ckpt"
@@ -191,18 +196,17 @@ def test_crafted_checkpoint_runs_nothing_on_resume(tmp_path, trefoil_ckpt):
     message = refused(tmp_path, [f"ckpt_path={evil}"], "could run code")
     assert "posix.system" in message or "os.system" in message
     assert not marker.exists()
-    proc = run_command_in_process(TRAIN_MODULE, [*TINY, "trainer.max_steps=4", f"ckpt_path={evil}",
+    proc = run_command_in_process(TRAIN_COMMAND, [*TINY, "trainer.max_steps=4", f"ckpt_path={evil}",
                                                  f"hydra.run.dir={tmp_path / 'cli'}"], cwd=ROOT)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert [line for line in proc.stderr.splitlines() if line.startswith("error:")][0].count("could run code")
     assert not marker.exists()
 
 
-@pytest.mark.slow
 def test_cli_resume_errors_exit_2_without_traceback(tmp_path):
     text = tmp_path / "notes.ckpt"
     text.write_text("not a checkpoint\n")
-    proc = run_command_in_process(TRAIN_MODULE, [*TINY, f"ckpt_path={text}", f"hydra.run.dir={tmp_path / 'run'}"],
+    proc = run_command_in_process(TRAIN_COMMAND, [*TINY, f"ckpt_path={text}", f"hydra.run.dir={tmp_path / 'run'}"],
                                   cwd=ROOT)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
