@@ -8,7 +8,7 @@
 2. the training step (current loss + surface loss, double backward, Adam), also with
    ``model.net.matmul_precision=medium`` (bf16 / TF32 internals in the decoder pass's products), and with the
    winding cap (``model.winding_weight``) at the hinge's reach and at twice it (``model.winding_reach=2``: one more
-   pass of f over the surface samples);
+   pass of f over the surface samples), and with f in a window of two jumps (``model.net.f_turns=2``, one tanh);
 3. the decoder's first layer as implemented (code part once per shape) against the plain concatenation
    [code | RFF(x)] per point: time and peak memory of forward + double backward (CUDA: allocator peak;
    CPU: the size of the concatenated input the split avoids).
@@ -106,15 +106,17 @@ def main() -> None:
     medium_s = timed(step, device, args.repeats)
     module.family.matmul_precision = "highest"
 
-    def with_winding(weight: float, reach: float = 1.0):
+    def variant(weight: float = 0.0, reach: float = 1.0, f_turns: float = 0.0):
         def run():
             module.hparams.winding_weight, module.hparams.winding_reach = weight, reach
+            module.family.f_turns = f_turns
             step()
         return run
 
     # the cap reuses the hinge's values at reach 1 and takes one more f pass over the surface samples at reach 2;
-    # interleaved with the plain step, one of each per round, so that all see the same machine state
-    variants = {"plain": with_winding(0.0), "reach1": with_winding(5.0), "reach2": with_winding(5.0, 2.0)}
+    # the window is a tanh of f and its gradient; interleaved with the plain step, one of each per round, so that
+    # all see the same machine state
+    variants = {"plain": variant(), "reach1": variant(5.0), "reach2": variant(5.0, 2.0), "window": variant(f_turns=2.0)}
     rounds = {name: [] for name in variants}
     for run in variants.values():
         run()
@@ -125,9 +127,10 @@ def main() -> None:
             run()
             sync(device)
             rounds[name].append(time.perf_counter() - t)
-    with_winding(0.0)()  # the plain module again for the first-layer timings
+    variant()()  # the plain module again for the first-layer timings
     plain_s = statistics.median(rounds["plain"])
     winding_s = {1.0: statistics.median(rounds["reach1"]) / plain_s, 2.0: statistics.median(rounds["reach2"]) / plain_s}
+    window_ratio = statistics.median(rounds["window"]) / plain_s
 
     fam = module.family
     code = fam.code(fam.latents(batch["index"]), batch["loops"], batch["loop_mask"]).detach().requires_grad_(True)
@@ -151,6 +154,7 @@ def main() -> None:
         "meshes": args.meshes, "samples_per_mesh": args.samples, "network": sizes,
         "data_seconds_per_batch": data_s, "train_step_seconds": step_s, "train_step_seconds_medium": medium_s,
         "train_step_ratio_winding": winding_s[1.0], "train_step_ratio_winding_reach2": winding_s[2.0],
+        "train_step_ratio_window": window_ratio,
         "workers_to_keep_up": data_s / step_s,
         "first_layer": results,
         "first_layer_time_ratio_concat_over_split": results["concatenated"]["seconds"] / results["split"]["seconds"],
@@ -162,6 +166,7 @@ def main() -> None:
     print(f"  … with model.net.matmul_precision=medium {medium_s:8.3f} s   ({step_s / medium_s:.2f}× faster)")
     for reach, ratio in winding_s.items():
         print(f"  … with model.winding_weight=5 model.winding_reach={reach:g}: {ratio:.2f}× the step (interleaved)")
+    print(f"  … with model.net.f_turns=2 (the window on f): {window_ratio:.2f}× the step (interleaved)")
     for name, r in results.items():
         mem = f"  peak {r['peak_bytes'] / 2**20:8.1f} MiB" if r["peak_bytes"] else ""
         print(f"  first layer {name:13s} ∇f + backward {r['seconds']:7.3f} s{mem}")

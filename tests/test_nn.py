@@ -346,6 +346,58 @@ def test_family_decoder_takes_the_hand_written_pass_with_the_same_numbers(monkey
         assert _relative_error(a, b) <= 1e-10
 
 
+def test_family_f_window_is_a_tanh_of_the_decoder_and_both_passes_agree(monkeypatch):
+    """model.net.f_turns: f = W·tanh(h), W = f_turns·2π·alpha_scale, h the unwindowed decoder (the same weights with
+    f_turns = 0); ∇f = W(1 − tanh²)∇h, the same through the hand-written pass and autograd (every parameter's
+    gradient too); f stays inside ±W, and a zero-initialised window starts at f ≡ 0 (ω = α), its middle. A window
+    of at most one jump is refused in one sentence."""
+    import deepcurrents.nn.family as family_module
+
+    def family(f_turns, zero_init_output=False):
+        torch.manual_seed(7)
+        return family_module.FamilyCurrent(num_shapes=2, num_loops=1, latent_dim=4, boundary_dim=4,
+                                           num_frequencies=8, width=8, depth=2, zero_init_output=zero_init_output,
+                                           alpha_scale=0.05, f_turns=f_turns).double()
+
+    windowed, plain = family(1.5), family(0.0)
+    w = 1.5 * 2 * math.pi * 0.05
+    assert windowed.half_window == pytest.approx(w)
+    loops = torch.tensor(circle(0.5, n=12))[None, None].expand(2, 1, -1, -1).contiguous()
+    mask = torch.ones(2, 1, 12, dtype=torch.bool)
+    x = torch.rand(2, 40, 3, dtype=torch.float64) * 2 - 1
+
+    def run(fam):
+        code = fam.code(fam.latents(torch.arange(2)), loops, mask)
+        f, omega = fam(x, code, loops, mask)
+        grads = torch.autograd.grad(current_loss(omega.reshape(-1, 3)) + f.square().mean(), list(fam.parameters()))
+        return f.detach(), omega.detach(), grads
+
+    f, omega, grads = run(windowed)
+    h, omega_h, _ = run(plain)
+    alpha = windowed.alpha(x, [[loops[0, 0]], [loops[1, 0]]])  # alpha_scale·α, the same for both
+    t = torch.tanh(h)
+    assert 0.2 < float(t.abs().max()) < 0.999  # the test reaches the tanh's bend, not only its linear part
+    torch.testing.assert_close(f, w * t, rtol=1e-12, atol=1e-15)
+    torch.testing.assert_close(omega - alpha, (w * (1 - t * t))[..., None] * (omega_h - alpha), rtol=1e-10,
+                               atol=1e-15)
+    start = family(1.5, zero_init_output=True)
+    f0, omega0, _ = run(start)
+    assert torch.equal(f0, torch.zeros_like(f0))
+    torch.testing.assert_close(omega0, alpha, rtol=1e-12, atol=1e-15)
+    with torch.no_grad():
+        assert float(windowed.f(x, windowed.code(windowed.latents(torch.arange(2)), loops, mask)).abs().max()) < w
+    monkeypatch.setattr(family_module, "closed_form_supported", lambda *args, **kwargs: False)
+    ref = run(windowed)
+    torch.testing.assert_close(ref[0], f, rtol=1e-12, atol=1e-15)
+    assert _relative_error(ref[1], omega) <= 1e-12
+    for a, b in zip(grads, ref[2], strict=True):
+        assert _relative_error(a, b) <= 1e-10
+    with pytest.raises(ConfigError, match=r"model\.net\.f_turns=0\.9 must be 0 \(no window\) or above 1"):
+        family(0.9)
+    with pytest.raises(ConfigError, match=r"model\.net\.f_turns=wide must be non-negative"):
+        family("wide")
+
+
 def test_coarse_to_fine_features_open_in_order_of_frequency():
     """w_k ramps from 0 to 1 as the front passes rank(|B_k|); every w is 1 once the fraction coarse_to_fine of
     the budget is used, and then the features are the plain ones of the same seed."""

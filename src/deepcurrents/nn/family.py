@@ -10,13 +10,14 @@ Shapes are batched as S shapes × N points. Loops are padded: ``loops`` (S, B, L
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, number_at_least
 from deepcurrents.geometry import biot_savart
 from deepcurrents.nn.current import NeuralCurrent, spatial_gradient
 from deepcurrents.nn.encoder import BoundaryEncoder
@@ -58,6 +59,12 @@ class FamilyCurrent(nn.Module):
             coarse_start, matmul_precision: as ``NeuralCurrent``.
         latent_std: standard deviation of the initial codes (paper: 0.1).
         zero_init_output: zero the decoder's last layer (f ≡ const at the start; False: PyTorch's default).
+        f_turns: > 0 (beyond the paper) confines f to a window of ``f_turns`` full jumps J = 4π·alpha_scale,
+            f = W·tanh(h) with W = f_turns·J/2 and h the decoder's output, so h is in units of the window (the
+            first Adam steps move h by about the learning rate; in f's own units, J ≈ 0.013, one step would
+            saturate it). A minimal current's f is −alpha_scale·Ω on a branch of the solid angle cut along the
+            surface, whose values span exactly one J, so a window a little over one turn holds it while the phase
+            cannot wind again along n (the dome the metric w(I − n nᵀ) leaves free). 0: unbounded (the paper).
     """
 
     def __init__(
@@ -79,6 +86,7 @@ class FamilyCurrent(nn.Module):
         coarse_to_fine: float = 0.0,
         coarse_start: float = 0.25,
         matmul_precision: str = "highest",
+        f_turns: float = 0.0,
     ):
         super().__init__()
         for key, value in (("num_shapes", num_shapes), ("num_loops", num_loops), ("latent_dim", latent_dim),
@@ -86,6 +94,10 @@ class FamilyCurrent(nn.Module):
             if int(value) <= 0:
                 raise ConfigError(f"model.{key}={value} must be a positive integer.")
         self.num_loops, self.alpha_scale = int(num_loops), float(alpha_scale)
+        self.f_turns = number_at_least("model.net.f_turns", f_turns)
+        if 0 < self.f_turns <= 1:
+            raise ConfigError(f"model.net.f_turns={f_turns} must be 0 (no window) or above 1: a surface's f spans one "
+                              "full jump, which a window of at most one cannot hold.")
         self.matmul_precision = check_matmul_precision(matmul_precision)
         self.latents = nn.Embedding(int(num_shapes), int(latent_dim))
         nn.init.normal_(self.latents.weight, mean=0.0, std=float(latent_std))
@@ -96,6 +108,8 @@ class FamilyCurrent(nn.Module):
         self.mlp = FieldMLP(self.code_dim + self.encoding.out_dim, width, depth, activation)
         if zero_init_output:  # f starts constant (ω = α) for every code, as NeuralCurrent does
             nn.init.zeros_(self.mlp.net[-1].weight)
+            if self.f_turns:  # and f ≡ 0, the window's middle: PyTorch's bias (±1/√width) would start it saturated
+                nn.init.zeros_(self.mlp.net[-1].bias)
 
     @property
     def num_shapes(self) -> int:
@@ -117,7 +131,21 @@ class FamilyCurrent(nn.Module):
         first = self.mlp.net[0]
         c = self.code_dim
         h = F.linear(features, first.weight[:, c:]) + F.linear(code, first.weight[:, :c], first.bias)[:, None]
-        return self.mlp.net[1:](h).squeeze(-1)
+        return self.window(self.mlp.net[1:](h).squeeze(-1))
+
+    @property
+    def half_window(self) -> float:
+        """W = f_turns·J/2, J = 4π·alpha_scale (0: no window)."""
+        return self.f_turns * 2.0 * math.pi * self.alpha_scale
+
+    def window(self, h: torch.Tensor, grad_h: torch.Tensor | None = None):
+        """f = W·tanh(h) (``f_turns``; the identity without a window). h (...,) → f; with grad_h (..., 3) also
+        ∇f = W(1 − tanh²)·∇h."""
+        w = self.half_window
+        if w == 0:
+            return h if grad_h is None else (h, grad_h)
+        t = torch.tanh(h)
+        return w * t if grad_h is None else (w * t, (w * (1 - t * t))[..., None] * grad_h)
 
     def f(self, x: torch.Tensor, code: torch.Tensor) -> torch.Tensor:
         """f_θ(x; code). x (S, N, 3), code (S, code_dim) → (S, N)."""
@@ -135,8 +163,9 @@ class FamilyCurrent(nn.Module):
             with torch.set_grad_enabled(create_graph and torch.is_grad_enabled()):
                 first, c = self.mlp.net[0], self.code_dim
                 bias = F.linear(code, first.weight[:, :c], first.bias)  # the code's part, once per shape (decode)
-                f, grad_f = field_and_gradient(self.mlp, self.encoding, x, first_layer=(first.weight[:, c:], bias),
-                                               matmul_precision=self.matmul_precision)
+                f, grad_f = self.window(*field_and_gradient(self.mlp, self.encoding, x,
+                                                            first_layer=(first.weight[:, c:], bias),
+                                                            matmul_precision=self.matmul_precision))
             with torch.no_grad():
                 alpha = self.alpha(x, unpad_loops(loops, mask))
             return f, grad_f + alpha
