@@ -501,6 +501,8 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         assert cpu.evaluation.mesh.level_blend == 0.1  # README "Why wrists were left open"
         assert cpu.model.surface_margin == 0.005  # README "Where the fog sits", "The heads' hinge margin"
         assert cfg.evaluation.mesh.level_blend == 0  # preset=paper: the paper's one level
+        # hands: f in a window of two jumps (README "A window on f"); heads and the paper: f unbounded
+        assert cpu.model.net.f_turns == (2.0 if name == "latent_hands" else 0) and cfg.model.net.f_turns == 0
 
 
 # --------------------------------------------------------------------------------------------- bad input
