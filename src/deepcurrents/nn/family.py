@@ -63,8 +63,9 @@ class FamilyCurrent(nn.Module):
             f = W·tanh(h) with W = f_turns·J/2 and h the decoder's output, so h is in units of the window (the
             first Adam steps move h by about the learning rate; in f's own units, J ≈ 0.013, one step would
             saturate it). A minimal current's f is −alpha_scale·Ω on a branch of the solid angle cut along the
-            surface, whose values span exactly one J, so a window a little over one turn holds it while the phase
-            cannot wind again along n (the dome the metric w(I − n nᵀ) leaves free). 0: unbounded (the paper).
+            surface, whose values span exactly one J, so a window of two (the hands' preset) holds it with room
+            while the phase cannot wind again along n (the dome the metric w(I − n nᵀ) leaves free); with 1.2 the
+            outside's f settled at the window's edge and some wrists opened. 0: unbounded (the paper).
     """
 
     def __init__(
@@ -138,7 +139,8 @@ class FamilyCurrent(nn.Module):
         """W = f_turns·J/2, J = 4π·alpha_scale (0: no window)."""
         return self.f_turns * 2.0 * math.pi * self.alpha_scale
 
-    def window(self, h: torch.Tensor, grad_h: torch.Tensor | None = None):
+    def window(self, h: torch.Tensor,
+               grad_h: torch.Tensor | None = None) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
         """f = W·tanh(h) (``f_turns``; the identity without a window). h (...,) → f; with grad_h (..., 3) also
         ∇f = W(1 − tanh²)·∇h."""
         w = self.half_window
