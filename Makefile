@@ -30,11 +30,14 @@ DATA_BODIES ?= 100
 data: $(ANNY_STAMP)
 	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
 
-# the quick start: 2000 of preset=cpu's 3000 steps (README "Looking at results": 61-96 s idle, with a
-# mass bound 0.836-0.839 against 0.819 and the same mesh); `make run RUN_STEPS=3000` runs the preset's whole budget
+# the quick start: 2000 steps of preset=cpu with recipe=sharp, the fast recipe (README "Looking at results": 92-93 s
+# whole on a slow VM hour, mass bound 1.021 x the trefoil's 0.737 against 1.135 without the recipe, mesh 0.7373
+# against 0.7361); `make run RUN_RECIPE=` runs preset=cpu alone, `make run RUN_STEPS=3000` the preset's whole budget
 RUN_STEPS ?= 2000
+RUN_RECIPE ?= recipe=sharp
 run: setup
-	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu trainer.max_steps=$(RUN_STEPS) hydra.run.dir=$(RUN_DIR)
+	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu $(RUN_RECIPE) trainer.max_steps=$(RUN_STEPS) \
+		hydra.run.dir=$(RUN_DIR)
 	@echo "Results in $(RUN_DIR): metrics.json, mesh.ply, mesh.png, render.png, checkpoints/last.ckpt"
 
 # every test, on one pytest-xdist worker per core (at most TEST_WORKERS_MAX: each worker holds torch and Lightning,

@@ -173,6 +173,13 @@ TRAIN_CASES = [
     ("sampling power a word", overrides("experiment=minimal_trefoil", "data.sampling.kind=importance",
                                         "+data.sampling.power=steep"), r"data\.sampling\.power=steep"),
     ("family shift a word", overrides("experiment=latent_hands", "data.shift=far"), r"data\.shift=far"),
+    ("sampling share a word", overrides("experiment=minimal_trefoil", "data.sampling.kind=importance",
+                                        "data.sampling.uniform_fraction=half"),
+     r"data\.sampling\.uniform_fraction=half must be in \(0, 1\]"),
+    ("curve_vertices a word", overrides("experiment=minimal_trefoil", "data.curve_vertices=many"),
+     r"data\.curve_vertices='many' must be an integer ≥ 3"),
+    ("num_workers a word", overrides("experiment=minimal_trefoil", "data.num_workers=all"),
+     r"data\.num_workers='all' must be an integer ≥ 0"),
     # checkpoints to resume from
     ("resume missing", overrides("experiment=minimal_trefoil", "ckpt_path=/nonexistent/last.ckpt"), "does not exist"),
     ("resume text file", lambda tmp: ["experiment=minimal_trefoil",
@@ -355,3 +362,29 @@ def test_a_number_setting_in_range_comes_back_as_a_float():
 
     assert number_at_least("w", 0) == 0.0 and isinstance(number_at_least("w", 3), float)
     assert number_at_least("w", 1, 1.0) == 1.0 and number_at_least("w", 1e-9, strict=True) == 1e-9
+
+
+@pytest.mark.parametrize("value, sentence", [
+    (0, "u=0 must be in (0, 1]."),
+    (1.5, "u=1.5 must be in (0, 1]."),
+    ("half", "u=half must be in (0, 1]."),
+    (True, "u=True must be in (0, 1]."),
+    (float("nan"), "u=nan must be in (0, 1]."),
+])
+def test_a_share_out_of_range_or_not_a_number_is_one_sentence(value, sentence):
+    from deepcurrents.errors import ConfigError, share
+
+    with pytest.raises(ConfigError) as info:
+        share("u", value)
+    assert str(info.value) == sentence
+    assert share("u", 1) == 1.0 and share("u", 0.25, "why") == 0.25
+
+
+@pytest.mark.parametrize("key, value", [("lr", "fast"), ("prior_weight", "some"), ("lr", -1)])
+def test_the_latent_fit_settings_are_checked_before_training_in_one_sentence(key, value):
+    from deepcurrents.errors import ConfigError
+    from deepcurrents.models.autodecoder import check_latent_fit
+
+    settings = {"steps": 10, "lr": 1e-3, "num_samples": 64, "num_surface_samples": 64, "prior_weight": 0.0}
+    with pytest.raises(ConfigError, match=rf"^model\.latent_fit\.{key}={value} must be"):
+        check_latent_fit(**{**settings, key: value})

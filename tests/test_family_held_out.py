@@ -204,7 +204,7 @@ def test_near_interpolation_points_keep_the_uniform_mean_and_sit_on_both_shapes(
                                      torch.ones(2, 1, 24, dtype=torch.bool), 100, surface)
     loss.backward()
     assert torch.isfinite(loss) and module.family.mlp.net[0].weight.grad.abs().sum() > 0
-    with pytest.raises(ConfigError, match=r"model.interpolation_sampling.near_sigma=0 must be a positive number"):
+    with pytest.raises(ConfigError, match=r"model.interpolation_sampling.near_sigma=0 must be positive"):
         AutodecoderModule(**{**module.hparams, "interpolation_sampling": {"kind": "near", "near_sigma": 0}})
     with pytest.raises(ConfigError, match=r"model.interpolation_sampling has unknown keys \['anchors'\]"):
         AutodecoderModule(**{**module.hparams, "interpolation_sampling": {"kind": "near", "anchors": 8}})

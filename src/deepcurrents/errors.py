@@ -39,3 +39,12 @@ def number_at_least(name: str, value: Any, minimum: float = 0.0, strict: bool = 
             what = f"a finite number {'>' if strict else '≥'} {minimum:g}"
         raise ConfigError(f"{name}={value} must be {what}.")
     return float(value)
+
+
+def share(name: str, value: Any, why: str = "") -> float:
+    """``value`` as a float in (0, 1] (a share of a batch), or ConfigError naming the setting ``name``; ``why``
+    is added to the sentence. A string or a boolean is refused in the same sentence."""
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and 0.0 < value <= 1.0
+    if not ok:
+        raise ConfigError(f"{name}={value} must be in (0, 1]{f' ({why})' if why else ''}.")
+    return float(value)

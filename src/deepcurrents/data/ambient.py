@@ -97,10 +97,8 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
         super().__init__()
         self.sampling = sampling_options(sampling)
         positive_int("data.num_samples", num_samples)
-        if curve_vertices < 3:
-            raise ConfigError(f"data.curve_vertices={curve_vertices} must be at least 3.")
-        if num_workers < 0:
-            raise ConfigError(f"data.num_workers={num_workers} must be zero or positive.")
+        positive_int("data.curve_vertices", curve_vertices, minimum=3)
+        positive_int("data.num_workers", num_workers, minimum=0)
         if isinstance(curve_scale, bool) or not isinstance(curve_scale, (int, float)) or not curve_scale > 0 \
                 or not np.isfinite(curve_scale):
             raise ConfigError(f"data.curve_scale={curve_scale!r} must be a positive number (it multiplies the "

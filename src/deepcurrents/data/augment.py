@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from deepcurrents.errors import ConfigError, number_at_least
+from deepcurrents.errors import ConfigError, number_at_least, share
 from deepcurrents.geometry.harmonic import HarmonicSkinning
 
 log = logging.getLogger(__name__)
@@ -58,14 +58,13 @@ class AugmentationRanges:
     mesh_scale: tuple[float, float] = (1.0, 1.0)
 
     def __post_init__(self):
-        if not 0 <= self.rotation_deg <= 180:
+        if number_at_least("data.rotation_deg", self.rotation_deg) > 180:
             raise ConfigError(f"data.rotation_deg={self.rotation_deg} must be between 0 and 180 degrees.")
         lo, hi = self.scale
         if not 0 < lo <= hi:
             raise ConfigError(f"data.scale_range={list(self.scale)} must be [low, high] with 0 < low ≤ high.")
         number_at_least("data.shift", self.shift)
-        if not 0 < self.bound <= 1:
-            raise ConfigError(f"data.bound={self.bound} must be in (0, 1] (the domain is [-1, 1]^3).")
+        share("data.bound", self.bound, "the domain is [-1, 1]^3")
         lo, hi = self.mesh_scale
         if not 0 < lo <= hi:
             raise ConfigError(f"data.mesh_scale_range={list(self.mesh_scale)} must be [low, high] with "

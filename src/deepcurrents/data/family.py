@@ -302,8 +302,7 @@ class FamilyDataModule(L.LightningDataModule):
         for key, value in (("meshes_per_batch", meshes_per_batch), ("num_samples", num_samples),
                            ("num_surface_samples", num_surface_samples)):
             positive_int(f"data.{key}", value)
-        if num_workers < 0:
-            raise ConfigError(f"data.num_workers={num_workers} must be zero or positive.")
+        positive_int("data.num_workers", num_workers, minimum=0)
         for key, value in (("scale_range", scale_range), ("mesh_scale_range", mesh_scale_range)):
             if len(value) != 2:
                 raise ConfigError(f"data.{key}={list(value)} must be [low, high].")

@@ -21,7 +21,7 @@ from deepcurrents.data.ambient import step_generators
 from deepcurrents.data.human_parts import dataset_path
 from deepcurrents.data.sampling import NEAR_SAMPLING_KINDS, NearTargetSampler
 from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_point_sample, mesh_boundary_loops
-from deepcurrents.errors import ConfigError, UserInputError, positive_int
+from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int, share
 from deepcurrents.geometry import Boundary, load_boundary, validate_loops, validate_points
 from deepcurrents.geometry.curves import box_normalisation
 from deepcurrents.geometry.meshes import read_mesh
@@ -176,12 +176,8 @@ def ambient_options(sampling: dict | None, key: str = "data.sampling", anchors: 
     if kind == "near":
         if anchors:
             positive_int(f"{key}.anchors", sampling.setdefault("anchors", 4096))
-        for name, default in (("uniform_fraction", 0.5), ("near_sigma", 0.02)):
-            value = sampling.setdefault(name, default)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ConfigError(f"{key}.{name}={value!r} must be a positive number.")
-        if not sampling["uniform_fraction"] <= 1:
-            raise ConfigError(f"{key}.uniform_fraction={sampling['uniform_fraction']} must be in (0, 1].")
+        number_at_least(f"{key}.near_sigma", sampling.setdefault("near_sigma", 0.02), strict=True)
+        share(f"{key}.uniform_fraction", sampling.setdefault("uniform_fraction", 0.5))
         sampling["weighted"] = bool(sampling.get("weighted", True))
     return sampling
 
@@ -239,8 +235,7 @@ class ReconstructionDataModule(L.LightningDataModule):
             positive_int(f"data.{key}", value)
         if not boundary_sigma > 0:
             raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
-        if num_workers < 0:
-            raise ConfigError(f"data.num_workers={num_workers} must be zero or positive.")
+        positive_int("data.num_workers", num_workers, minimum=0)
         if batch_kind not in ("current", "closest_point"):
             raise ConfigError(f"data.batch_kind='{batch_kind}' must be 'current' or 'closest_point'.")
         self.batch_kind, self.near_sigma = batch_kind, float(near_sigma)

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from deepcurrents.errors import ConfigError, number_at_least
+from deepcurrents.errors import ConfigError, number_at_least, share
 
 SAMPLING_KINDS = ("uniform", "sobol", "importance")
 
@@ -68,9 +68,7 @@ class AmbientSampler:
             raise ConfigError(f"data.sampling.kind={kind!r} must be one of {', '.join(SAMPLING_KINDS)}.")
         if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 1:
             raise ConfigError(f"data.sampling.resolution={resolution!r} must be a positive integer.")
-        if not 0.0 < uniform_fraction <= 1.0:
-            raise ConfigError(f"data.sampling.uniform_fraction={uniform_fraction} must be in (0, 1] "
-                              "(a uniform share bounds the importance weights).")
+        share("data.sampling.uniform_fraction", uniform_fraction, "a uniform share bounds the importance weights")
         number_at_least("data.sampling.power", power)
         self.dim, self.kind, self.resolution = dim, kind, resolution
         self.uniform_fraction, self.power = float(uniform_fraction), float(power)
@@ -231,9 +229,7 @@ class NearTargetSampler:
     def __init__(self, anchors: np.ndarray, sigma: float, uniform_fraction: float = 0.5, domain: float = 1.0,
                  radius: float = 3.0, weighted: bool = True):
         number_at_least("data.sampling.near_sigma", sigma, strict=True)
-        if not 0.0 < uniform_fraction <= 1.0:
-            raise ConfigError(f"data.sampling.uniform_fraction={uniform_fraction} must be in (0, 1] "
-                              "(a uniform share bounds the importance weights).")
+        share("data.sampling.uniform_fraction", uniform_fraction, "a uniform share bounds the importance weights")
         self.anchors = np.ascontiguousarray(np.asarray(anchors, np.float64))
         if self.anchors.ndim != 2 or len(self.anchors) == 0:
             raise ValueError("anchors must be a non-empty (K, d) array")

@@ -61,10 +61,8 @@ def check_latent_fit(steps: Any, lr: Any, num_samples: Any, num_surface_samples:
     """One sentence naming the ``model.latent_fit`` setting that is wrong (ConfigError), else the step count."""
     positive_int("model.latent_fit.num_samples", num_samples)
     positive_int("model.latent_fit.num_surface_samples", num_surface_samples)
-    if not float(lr) > 0:
-        raise ConfigError(f"model.latent_fit.lr={lr} must be positive.")
-    if not float(prior_weight) >= 0:
-        raise ConfigError(f"model.latent_fit.prior_weight={prior_weight} must be zero or positive.")
+    number_at_least("model.latent_fit.lr", lr, strict=True)
+    number_at_least("model.latent_fit.prior_weight", prior_weight)
     return positive_int("model.latent_fit.steps", steps)
 
 
