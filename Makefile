@@ -30,10 +30,11 @@ DATA_BODIES ?= 100
 data: $(ANNY_STAMP)
 	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
 
-# the quick start: 2000 steps of preset=cpu with recipe=sharp, the fast recipe (README "Looking at results": 92-93 s
-# whole on a slow VM hour, mass bound 1.021 x the trefoil's 0.737 against 1.135 without the recipe, mesh 0.7373
-# against 0.7361); `make run RUN_RECIPE=` runs preset=cpu alone, `make run RUN_STEPS=3000` the preset's whole budget
-RUN_STEPS ?= 2000
+# the quick start: 1500 steps of preset=cpu with recipe=sharp, the fast recipe (README "Looking at results": 77-86 s
+# whole, mass bound 1.059 x the trefoil's 0.737, mesh 0.7375; the former quick start, 2000 steps of preset=cpu
+# alone, 83-106 s, 1.135, 0.7361); `make run RUN_STEPS=2000` 1.021 in 92-117 s; `make run RUN_RECIPE=` runs
+# preset=cpu alone, `make run RUN_RECIPE= RUN_STEPS=3000` the preset's whole budget
+RUN_STEPS ?= 1500
 RUN_RECIPE ?= recipe=sharp
 run: setup
 	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu $(RUN_RECIPE) trainer.max_steps=$(RUN_STEPS) \
