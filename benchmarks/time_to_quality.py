@@ -102,6 +102,25 @@ def write_obj_loops(path: Path, loops: list[np.ndarray]) -> None:
     path.write_text("\n".join(lines) + "\n")
 
 
+def enneper_curve(tmp: Path, r: float) -> tuple[str, float]:
+    """Enneper's border at polar radius r written under ``tmp``, and its surface's area π(r² + r⁴ + r⁶/3)
+    (minimal and stable for r < 1). → (curve file, exact area)."""
+    path = tmp / f"enneper{round(10 * r):02d}.txt"
+    np.savetxt(path, enneper(r))
+    return str(path), math.pi * (r**2 + r**4 + r**6 / 3)
+
+
+def catenoid_curve(tmp: Path, radius: float, h: float) -> tuple[str, float]:
+    """Two coaxial circles of ``radius`` at z = ±h, opposite orientations, written under ``tmp``, and the stable
+    catenoid r = c·cosh(z/c) through them (c = catenoid_neck), area πc(2h + c·sinh(2h/c)); the caller checks it
+    is below the two disks' 2πR². → (curve file, exact area)."""
+    top, bottom = circle(radius, center=(0, 0, h), n=200), circle(radius, center=(0, 0, -h), n=200)[::-1]
+    path = tmp / f"catenoid_{radius:g}_{h:g}.obj"
+    write_obj_loops(path, [top, bottom])
+    c = catenoid_neck(radius, h)
+    return str(path), math.pi * c * (2 * h + c * math.sinh(2 * h / c))
+
+
 def curves(tmp: Path) -> dict[str, tuple[str, float]]:
     """name → (curve file, exact minimal area)."""
     out: dict[str, tuple[str, float]] = {}
@@ -112,30 +131,18 @@ def curves(tmp: Path) -> dict[str, tuple[str, float]]:
         path = ROOT / "examples" / "curves" / name
         (loop,) = load_boundary(str(path)).loops
         out[Path(name).stem] = (str(path), polygon_area(loop))
-    e = enneper(0.5)
-    np.savetxt(tmp / "enneper05.txt", e)
-    out["enneper05"] = (str(tmp / "enneper05.txt"), math.pi * (0.5**2 + 0.5**4 + 0.5**6 / 3))
-    # two coaxial circles R = 0.5 at z = ±0.2, opposite orientations: the catenoid r = c·cosh(z/c) through them
-    # (c = catenoid_neck(0.5, 0.2)), area πc(2h + c·sinh(2h/c)) = 1.2212, below the two disks' 2πR² = 1.571
-    top, bottom = circle(0.5, center=(0, 0, 0.2), n=200), circle(0.5, center=(0, 0, -0.2), n=200)[::-1]
-    write_obj_loops(tmp / "catenoid.obj", [top, bottom])
-    c = catenoid_neck(0.5, 0.2)
-    out["catenoid"] = (str(tmp / "catenoid.obj"), math.pi * c * (0.4 + c * math.sinh(0.4 / c)))
+    out["enneper05"] = enneper_curve(tmp, 0.5)
+    # the catenoid through R = 0.5 at z = ±0.2: 1.2212, below the two disks' 2πR² = 1.571
+    out["catenoid"] = catenoid_curve(tmp, 0.5, 0.2)
     # no closed form: the issue's reference, the grid method's mesh at a fine grid (≈ 0.737)
     out["trefoil"] = ("trefoil", 0.737)
     tc = circle(0.4, center=(0.1, -0.15, 0.05), normal=(1.0, 2.0, 2.0), n=200)
     np.savetxt(tmp / "tilted_circle04.txt", tc)
     out["tilted_circle04"] = (str(tmp / "tilted_circle04.txt"), polygon_area(tc))
-    # added 2026-12-04 as held-out curves for the recipes chosen before (no setting was tried on them):
-    # Enneper at r = 0.6 (stable for r < 1), and a narrower, closer pair of coaxial circles (R 0.45 at z = ±0.2,
-    # catenoid 1.0906 against the two disks' 1.2723)
-    e6 = enneper(0.6)
-    np.savetxt(tmp / "enneper06.txt", e6)
-    out["enneper06"] = (str(tmp / "enneper06.txt"), math.pi * (0.6**2 + 0.6**4 + 0.6**6 / 3))
-    top, bottom = circle(0.45, center=(0, 0, 0.2), n=200), circle(0.45, center=(0, 0, -0.2), n=200)[::-1]
-    write_obj_loops(tmp / "catenoid045.obj", [top, bottom])
-    c = catenoid_neck(0.45, 0.2)
-    out["catenoid045"] = (str(tmp / "catenoid045.obj"), math.pi * c * (0.4 + c * math.sinh(0.4 / c)))
+    # added 2026-12-04 as held-out curves for the recipes chosen before (no setting was tried on them): Enneper at
+    # r = 0.6, and a narrower pair of coaxial circles (R 0.45 at z = ±0.2: 1.0906 against the two disks' 1.2723)
+    out["enneper06"] = enneper_curve(tmp, 0.6)
+    out["catenoid045"] = catenoid_curve(tmp, 0.45, 0.2)
     return out
 
 

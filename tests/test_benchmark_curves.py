@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.integrate import quad
 
 from deepcurrents.geometry import load_boundary
@@ -21,17 +22,34 @@ def _benchmark():
     return module
 
 
-def test_catenoid_area_is_the_surface_of_revolution_integral(tmp_path):
+@pytest.mark.parametrize("name, radius, h", [("catenoid", 0.5, 0.2), ("catenoid045", 0.45, 0.2)])
+def test_catenoid_area_is_the_surface_of_revolution_integral(tmp_path, name, radius, h):
     ttq = _benchmark()
-    c = ttq.catenoid_neck(0.5, 0.2)
-    assert abs(c * math.cosh(0.2 / c) - 0.5) < 1e-12
-    assert c > 0.2 / 1.19967864  # the stable (outer) catenoid, not the inner one
+    c = ttq.catenoid_neck(radius, h)
+    assert abs(c * math.cosh(h / c) - radius) < 1e-12
+    assert c > h / 1.19967864  # the stable (outer) catenoid, not the inner one
     # area = ∫ 2π r √(1 + r'²) dz for r = c cosh(z/c), by quadrature
-    area, _ = quad(lambda z: 2 * math.pi * c * math.cosh(z / c) * math.sqrt(1 + math.sinh(z / c) ** 2), -0.2, 0.2)
-    path, exact = ttq.curves(tmp_path)["catenoid"]
+    area, _ = quad(lambda z: 2 * math.pi * c * math.cosh(z / c) * math.sqrt(1 + math.sinh(z / c) ** 2), -h, h)
+    path, exact = ttq.curves(tmp_path)[name]
     assert abs(exact - area) < 1e-9
-    assert exact < 2 * math.pi * 0.25  # below the two disks: the catenoid is the minimum
+    assert exact < 2 * math.pi * radius**2  # below the two disks: the catenoid is the minimum
     top, bottom = load_boundary(path, normalize=False).loops
     vector_area = [0.5 * np.cross(lp, np.roll(lp, -1, 0)).sum(0) for lp in (top, bottom)]
     assert vector_area[0][2] > 0 > vector_area[1][2]  # opposite orientations: ∂ of the catenoid
-    assert np.allclose(top[:, 2], 0.2) and np.allclose(bottom[:, 2], -0.2)
+    assert np.allclose(top[:, 2], h) and np.allclose(bottom[:, 2], -h)
+    assert np.allclose(np.linalg.norm(top[:, :2], axis=1), radius)
+
+
+@pytest.mark.parametrize("name, r", [("enneper05", 0.5), ("enneper06", 0.6)])
+def test_enneper_area_is_the_integral_of_its_metric_and_the_curve_its_border(tmp_path, name, r):
+    """Enneper's immersion X(u, v) = (u − u³/3 + uv², −v + v³/3 − u²v, u² − v²) has E = G = (1 + u² + v²)², F = 0:
+    the area over the disk of radius r, by quadrature, and its border X(r cos t, r sin t), as the benchmark writes."""
+    ttq = _benchmark()
+    area, _ = quad(lambda rho: 2 * math.pi * rho * (1 + rho**2) ** 2, 0.0, r)
+    path, exact = ttq.curves(tmp_path)[name]
+    assert abs(exact - area) < 1e-12
+    t = 2 * np.pi * np.arange(200) / 200
+    u, v = r * np.cos(t), r * np.sin(t)
+    border = np.stack([u - u**3 / 3 + u * v**2, -v + v**3 / 3 - u**2 * v, u**2 - v**2], -1)
+    (loop,) = load_boundary(path, normalize=False).loops
+    assert np.allclose(loop, border, atol=1e-8)
