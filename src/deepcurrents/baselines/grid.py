@@ -22,7 +22,7 @@ from deepcurrents.baselines.grid_solver import (
     grid_spacing,
     grid_vertices,
 )
-from deepcurrents.errors import ConfigError, positive_int
+from deepcurrents.errors import ConfigError, number_at_least, positive_int
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import biot_savart
@@ -67,9 +67,7 @@ class GridModule(DeepCurrentsModule):
         if "loops" not in boundary:
             raise ConfigError("model=grid needs a 3D boundary (closed loops); 2D point boundaries are not supported.")
         loops = [torch.tensor(lp, dtype=torch.float64) for lp in boundary["loops"]]
-        alpha_scale = float(net.get("alpha_scale", 1e-3))
-        if not alpha_scale > 0:
-            raise ConfigError(f"model.net.alpha_scale={alpha_scale} must be positive.")
+        alpha_scale = number_at_least("model.net.alpha_scale", net.get("alpha_scale", 1e-3), strict=True)
         dtype = str(grid.get("dtype", "float64"))
         if dtype not in DTYPES:
             raise ConfigError(f"model.grid.dtype={dtype!r} must be one of {sorted(DTYPES)}.")

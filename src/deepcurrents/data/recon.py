@@ -233,8 +233,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         super().__init__()
         for key, value in (("num_samples", num_samples), ("num_surface_samples", num_surface_samples)):
             positive_int(f"data.{key}", value)
-        if not boundary_sigma > 0:
-            raise ConfigError(f"data.boundary_sigma={boundary_sigma} must be positive.")
+        number_at_least("data.boundary_sigma", boundary_sigma, strict=True)
         positive_int("data.num_workers", num_workers, minimum=0)
         if batch_kind not in ("current", "closest_point"):
             raise ConfigError(f"data.batch_kind='{batch_kind}' must be 'current' or 'closest_point'.")

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 import trimesh
 
-from deepcurrents.errors import ConfigError, NonFiniteLossError, positive_int
+from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least, positive_int, share
 from deepcurrents.eval.metrics import mesh_summary
 from deepcurrents.eval.plots import MeshView, plot_mesh
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
@@ -86,13 +86,10 @@ class DeepCurrentsModule(L.LightningModule):
     def __init__(self, optim: dict[str, Any] | None):
         super().__init__()
         if optim is not None:
-            lr, step_size, gamma = float(optim["lr"]), int(optim["step_size"]), float(optim["gamma"])
-            if not lr > 0:
-                raise ConfigError(f"model.optim.lr={lr} must be positive.")
-            if step_size <= 0:
-                raise ConfigError(f"model.optim.step_size={step_size} must be a positive number of steps.")
-            if not 0 < gamma <= 1:
-                raise ConfigError(f"model.optim.gamma={gamma} must be in (0, 1].")
+            # a word where a number belongs is the same one sentence (not a ValueError inside Hydra's call)
+            number_at_least("model.optim.lr", optim["lr"], strict=True)
+            number_at_least("model.optim.step_size", optim["step_size"], 1.0)  # steps (1e4 from the command line)
+            share("model.optim.gamma", optim["gamma"])
             check_schedule(optim)
         self.run_config: dict | None = None  # set by the entry point; saved in checkpoints
         self.train_seconds = 0.0  # training time of the fit loops that ended (this run and those it resumed)
