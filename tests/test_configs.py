@@ -279,3 +279,20 @@ def test_curve_method_is_checked_and_the_semicircle_keeps_the_level_set():
     assert composed("experiment=recon_2d_semicircle").evaluation.curve.method == "level_set"
     with pytest.raises(ConfigError, match="evaluation.curve.method='magic' must be one of phase, level_set"):
         validate_config(composed("experiment=minimal_2d", "evaluation.curve.method=magic"))
+
+
+def test_the_quick_start_is_the_fast_recipe_at_1500_steps():
+    """`make run` (README, Two commands) trains the trefoil with preset=cpu and recipe=sharp for RUN_STEPS steps:
+    the Makefile's defaults compose into the sharpened current with importance samples and the mesh-refined mass
+    estimate, and `RUN_RECIPE=` gives preset=cpu alone."""
+    make = (Path(CONF_DIR).parent / "Makefile").read_text()
+    defaults = dict(line.split(" ?= ", 1) for line in make.splitlines() if line.startswith(("RUN_RECIPE", "RUN_STEPS")))
+    assert defaults == {"RUN_RECIPE": "recipe=sharp", "RUN_STEPS": "1500"}
+    run = [line for line in make.splitlines() if "train.py" in line and "$(RUN_RECIPE)" in line]
+    assert len(run) == 1 and "experiment=minimal_trefoil preset=cpu" in run[0]
+    cfg = compose_cfg(["experiment=minimal_trefoil", "preset=cpu", defaults["RUN_RECIPE"],
+                       f"trainer.max_steps={defaults['RUN_STEPS']}"])
+    assert cfg.model.net.phase_sharpening == 2.0 and cfg.model.net.phase_sharpening_start == 0.7
+    assert cfg.data.sampling.kind == "importance" and cfg.evaluation.mass_refine_mesh is True
+    plain = compose_cfg(["experiment=minimal_trefoil", "preset=cpu"])
+    assert plain.model.net.phase_sharpening == 0 and plain.data.sampling.kind == "uniform"
