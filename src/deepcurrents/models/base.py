@@ -42,20 +42,21 @@ def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None,
     kwargs = dict(net)
     kwargs.update(num_frequencies=rff.get("num_frequencies", 1024), sigma=rff.get("sigma", 2.0),
                   rff=bool(rff.get("enabled", True)), rff_seed=rff.get("seed"))
-    coarse_to_fine, coarse_start = float(rff.get("coarse_to_fine", 0.0)), float(rff.get("coarse_start", 0.25))
-    if not 0.0 <= coarse_to_fine <= 1.0:
+    # the number checks first: a word where a number belongs is one sentence, not a ValueError inside Hydra's call
+    coarse_to_fine = number_at_least("model.rff.coarse_to_fine", rff.get("coarse_to_fine", 0.0))
+    coarse_start = number_at_least("model.rff.coarse_start", rff.get("coarse_start", 0.25), strict=True)
+    if coarse_to_fine > 1.0:
         raise ConfigError(f"model.rff.coarse_to_fine={coarse_to_fine} must be a fraction of the budget in [0, 1] "
                           "(0: every frequency from the start).")
-    if not 0.0 < coarse_start <= 1.0:
+    if coarse_start > 1.0:
         raise ConfigError(f"model.rff.coarse_start={coarse_start} must be a fraction of the frequencies in (0, 1].")
     if coarse_to_fine > 0:
         kwargs.update(coarse_to_fine=coarse_to_fine, coarse_start=coarse_start)
     for group, key in (("rff", "num_frequencies"), ("net", "width"), ("net", "depth")):
         positive_int(f"model.{group}.{key}", kwargs.get(key, 1))
-    if not float(kwargs["sigma"]) > 0:
-        raise ConfigError(f"model.rff.sigma={kwargs['sigma']} must be positive.")
-    if "alpha_scale" in kwargs and not float(kwargs["alpha_scale"]) > 0:
-        raise ConfigError(f"model.net.alpha_scale={kwargs['alpha_scale']} must be positive.")
+    number_at_least("model.rff.sigma", kwargs["sigma"], strict=True)
+    if "alpha_scale" in kwargs:
+        number_at_least("model.net.alpha_scale", kwargs["alpha_scale"], strict=True)
     grid = dict(grid_encoding or {})
     unknown = set(grid) - GRID_ENCODING_KEYS
     if unknown:

@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from deepcurrents.errors import ConfigError, number_at_least
+from deepcurrents.errors import ConfigError, number_at_least, positive_int
 from deepcurrents.geometry import biot_savart
 from deepcurrents.nn.current import NeuralCurrent, spatial_gradient
 from deepcurrents.nn.encoder import BoundaryEncoder
@@ -92,9 +92,9 @@ class FamilyCurrent(nn.Module):
         super().__init__()
         for key, value in (("num_shapes", num_shapes), ("num_loops", num_loops), ("latent_dim", latent_dim),
                            ("boundary_dim", boundary_dim)):
-            if int(value) <= 0:
-                raise ConfigError(f"model.{key}={value} must be a positive integer.")
-        self.num_loops, self.alpha_scale = int(num_loops), float(alpha_scale)
+            positive_int(f"model.{key}", value)
+        self.num_loops = int(num_loops)
+        self.alpha_scale = number_at_least("model.net.alpha_scale", alpha_scale, strict=True)
         self.f_turns = number_at_least("model.net.f_turns", f_turns)
         if 0 < self.f_turns <= 1:
             raise ConfigError(f"model.net.f_turns={f_turns} must be 0 (no window) or above 1: a surface's f spans one "

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 from torch.autograd.function import once_differentiable
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, positive_int
 
 # Spatial-hash primes of Müller et al. (the first is 1 so that, along x, neighbouring cells stay neighbours).
 _PRIMES = (1, 2654435761, 805459861)
@@ -37,8 +37,7 @@ class MultiresGrid(nn.Module):
         for name, value in (("levels", levels), ("base_resolution", base_resolution),
                             ("finest_resolution", finest_resolution), ("features", features),
                             ("table_size", table_size)):
-            if int(value) < 1:
-                raise ConfigError(f"model.grid_encoding.{name}={value} must be a positive integer.")
+            positive_int(f"model.grid_encoding.{name}", value)
         if finest_resolution < base_resolution:
             raise ConfigError(f"model.grid_encoding.finest_resolution={finest_resolution} must be at least "
                               f"base_resolution={base_resolution}.")
