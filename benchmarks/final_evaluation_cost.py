@@ -2,15 +2,15 @@
 
     OMP_NUM_THREADS=1 python benchmarks/final_evaluation_cost.py outputs/…/checkpoints/last.ckpt
 
-Times ``final_evaluation`` (mass estimate, mesh, writing the mesh files, sharpened bound) and the media
-callback's render of the checkpoint's module, and the seconds of one training step of the same run
-configuration measured in the same process (before and after, averaged, so that a change of the machine's
-load hits both); prints one JSON line with the ratios to ``trainer.max_steps`` steps. To compare two trees
+Times ``final_evaluation`` (mass estimate, mesh, writing the mesh files, sharpened bound) and the media callback's
+render of the checkpoint's module, and the seconds of one training step of the same run configuration measured in
+the same process (before and after, averaged, so that a change of the machine's load hits both); prints one JSON
+line with the ratios to ``trainer.max_steps`` steps (a time-budgeted run's: the steps it made). To compare two trees
 on a shared machine, run it alternately from each (``git worktree add /tmp/old <commit>``, then
 ``PYTHONPATH=/tmp/old/src python benchmarks/final_evaluation_cost.py …``): the ratios, not the seconds, are
 comparable. ``--mass-refine 1`` evaluates with the plain mass estimate (``evaluation.mass_refine``),
-``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``), ``--mass-refine-mesh 0|1`` without or with
-the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it).
+``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``), ``--mass-refine-mesh 0|1`` without or
+with the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it).
 ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
 """
 
@@ -29,7 +29,7 @@ import deepcurrents
 from deepcurrents.experiments.runner import build
 from deepcurrents.losses import current_loss
 from deepcurrents.models.callbacks import MediaCallback
-from deepcurrents.models.loading import load_module
+from deepcurrents.models.loading import load_module, read_checkpoint
 
 
 def step_seconds(cfg, steps: int = 30, warm: int = 5) -> float:
@@ -83,9 +83,13 @@ def main() -> None:
         render.render(module, os.path.join(tmp, "render.png"))
         rendering = time.perf_counter() - start
     step = 0.5 * (before + step_seconds(cfg))
-    train = step * int(cfg.trainer.max_steps)
+    steps = int(cfg.trainer.max_steps)
+    if steps < 0:  # a time-budgeted run (trainer.max_steps=-1): the steps it made
+        steps = int(read_checkpoint(args.ckpt)["global_step"])
+    train = step * steps
     print(json.dumps({
-        "tree": deepcurrents.__file__.split("/src/")[0], "seconds_per_step": step, "train_seconds": train,
+        "tree": deepcurrents.__file__.split("/src/")[0], "seconds_per_step": step, "steps": steps,
+        "train_seconds": train,
         "evaluation_seconds": evaluation, "render_seconds": rendering,
         "evaluation_per_train": evaluation / train, "with_render_per_train": (evaluation + rendering) / train,
         **{k: metrics.get(k) for k in ("mass_samples", "mass_evaluations", "mass_area", "mass_area_stderr",

@@ -22,7 +22,8 @@ def _benchmark():
     return module
 
 
-@pytest.mark.parametrize("name, radius, h", [("catenoid", 0.5, 0.2), ("catenoid045", 0.45, 0.2)])
+@pytest.mark.parametrize("name, radius, h",
+                         [("catenoid", 0.5, 0.2), ("catenoid045", 0.45, 0.2), ("catenoid06", 0.6, 0.25)])
 def test_catenoid_area_is_the_surface_of_revolution_integral(tmp_path, name, radius, h):
     ttq = _benchmark()
     c = ttq.catenoid_neck(radius, h)
@@ -40,7 +41,7 @@ def test_catenoid_area_is_the_surface_of_revolution_integral(tmp_path, name, rad
     assert np.allclose(np.linalg.norm(top[:, :2], axis=1), radius)
 
 
-@pytest.mark.parametrize("name, r", [("enneper05", 0.5), ("enneper06", 0.6)])
+@pytest.mark.parametrize("name, r", [("enneper05", 0.5), ("enneper06", 0.6), ("enneper07", 0.7)])
 def test_enneper_area_is_the_integral_of_its_metric_and_the_curve_its_border(tmp_path, name, r):
     """Enneper's immersion X(u, v) = (u − u³/3 + uv², −v + v³/3 − u²v, u² − v²) has E = G = (1 + u² + v²)², F = 0:
     the area over the disk of radius r, by quadrature, and its border X(r cos t, r sin t), as the benchmark writes."""
@@ -53,3 +54,35 @@ def test_enneper_area_is_the_integral_of_its_metric_and_the_curve_its_border(tmp
     border = np.stack([u - u**3 / 3 + u * v**2, -v + v**3 / 3 - u**2 * v, u**2 - v**2], -1)
     (loop,) = load_boundary(path, normalize=False).loops
     assert np.allclose(loop, border, atol=1e-8)
+
+
+def _plane_normal(about_x: float, about_y: float) -> np.ndarray:
+    """e_z turned as ``tilted`` turns it, written out by hand: R_y(b) R_x(a) e_z."""
+    a, b = math.radians(about_x), math.radians(about_y)
+    return np.array([math.cos(a) * math.sin(b), -math.sin(a), math.cos(a) * math.cos(b)])
+
+
+@pytest.mark.parametrize("name, about_x, about_y, offset, area", [
+    # the star's fan of triangles from its centre: ½ Σ r_i r_i+1 sin(2π/M)
+    ("star", 30, 0, (0.1, 0.0, 0.05),
+     0.5 * math.sin(2 * math.pi / 300) * float(np.sum((r := 0.45 + 0.15 * np.cos(10 * math.pi * np.arange(300) / 300))
+                                                       * np.roll(r, -1)))),
+    ("square12", 0, 20, (0.0, 0.0, 0.0), 1.2**2),
+    ("small_circle", 50, 25, (0.3, -0.2, 0.1), 0.5 * 300 * 0.25**2 * math.sin(2 * math.pi / 300)),  # regular 300-gon
+])
+def test_planar_curves_lie_in_their_plane_and_bound_their_area(tmp_path, name, about_x, about_y, offset, area):
+    ttq = _benchmark()
+    path, exact = ttq.curves(tmp_path)[name]
+    assert abs(exact - area) < 1e-12
+    (loop,) = load_boundary(path, normalize=False).loops
+    normal = _plane_normal(about_x, about_y)
+    assert np.abs((loop - np.asarray(offset)) @ normal).max() < 1e-12  # planar: the flat region is the minimum
+    # counter-clockwise about the normal (the vector area points along it)
+    assert 0.5 * np.cross(loop, np.roll(loop, -1, 0)).sum(0) @ normal > 0
+
+
+def test_star_is_close_to_its_smooth_curve():
+    """The 300-vertex star's area is within O(1/M²) of the smooth r(t) = 0.45 + 0.15 cos 5t's ½∫r² dt."""
+    ttq = _benchmark()
+    smooth = math.pi * (0.45**2 + 0.15**2 / 2)
+    assert 0 < smooth - ttq.polygon_area(ttq.tilted(ttq.star_points(), 30, 0)) < 1e-3
