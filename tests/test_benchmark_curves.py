@@ -86,3 +86,35 @@ def test_star_is_close_to_its_smooth_curve():
     ttq = _benchmark()
     smooth = math.pi * (0.45**2 + 0.15**2 / 2)
     assert 0 < smooth - ttq.polygon_area(ttq.tilted(ttq.star_points(), 30, 0)) < 1e-3
+
+
+def test_score_gives_areas_in_the_curve_own_units_for_a_normalised_curve(tmp_path):
+    """The star reaches 0.7 and is trained scaled into the safe box (data.normalize=auto): the benchmark's copy
+    scores must be areas in the star's own units, like metrics.json's. Untrained (zero output layer), ω = s·α of the
+    scaled curve; the same uniform samples mapped back to the star's frame and α of the star itself, computed there,
+    give ∫_{U'} |s·α| = scale² ∫_U |s·α_model| independently of how the benchmark converts."""
+    import torch
+
+    from deepcurrents.eval.metrics import mass_to_area
+    from deepcurrents.experiments.runner import build
+    from deepcurrents.geometry import biot_savart
+    from deepcurrents.models.current_module import input_frame
+
+    ttq = _benchmark()
+    path, exact = ttq.curves(tmp_path)["star"]
+    cfg = ttq.compose_cfg(["experiment=minimal_curve", f"data.curve={path}", "preset=cpu"])
+    _, module = build(cfg)
+    scale, offset = input_frame(module.hparams.boundary)
+    assert scale > 1.05  # normalised
+    n = 1 << 12
+    (row,) = ttq.score(module, cfg, [{"state": module.current.state_dict(), "seconds": 0.0}], exact, n, mesh=False,
+                       mesh_resolution=32)
+    x = torch.rand(4 * n, 3, generator=torch.Generator().manual_seed(12345)) * 2.0 - 1.0  # score's samples
+    star = torch.as_tensor(np.loadtxt(path))
+    y = x.double() * scale + torch.as_tensor(offset)  # the same points in the star's frame
+    alpha_scale = module.current.alpha_scale
+    mean = float((alpha_scale * biot_savart(y, [star])).norm(dim=-1).mean())
+    # over U' = scale·U + offset, whose volume is scale³ that of U
+    expected = mass_to_area(mean, 3, alpha_scale) * scale**3
+    assert row["mass_area"] == pytest.approx(expected, rel=1e-3)
+    assert row["ratio"] == pytest.approx(expected / exact, rel=1e-3)
