@@ -504,7 +504,8 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=180.0, help="training budget per recipe and curve")
     ap.add_argument("--steps", type=int, default=None,
                     help="a step budget instead (quality per step does not depend on the machine's load)")
-    ap.add_argument("--curves", nargs="+", default=["circle05", "ellipse", "tilted_square"])
+    ap.add_argument("--curves", nargs="*", default=["circle05", "ellipse", "tilted_square"],
+                    help="curves used for tuning (`--curves` alone: none, every curve from --heldout)")
     ap.add_argument("--heldout", nargs="*", default=[], help="curves never used for tuning (reported apart)")
     ap.add_argument("--recipes", nargs="+", default=["paper", "cpu", "fast"])
     ap.add_argument("--recipe", action="append", default=[], metavar="NAME=OVERRIDE,OVERRIDE",
@@ -527,6 +528,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None,
                     help="torch threads (on a CPU shared with other jobs, 1 avoids threads waiting on each other)")
     args = ap.parse_args()
+    if not args.curves and not args.heldout:
+        raise SystemExit("give at least one curve: --curves or --heldout")
     if args.threads:
         torch.set_num_threads(args.threads)
 
@@ -551,9 +554,10 @@ def main() -> None:
             (RESULTS / f"{args.out}_eval_cost.json").write_text(json.dumps(out, indent=2))
             return
         if args.step_cost:
-            costs = step_costs({r: recipes[r] for r in args.recipes}, known[args.curves[0]][0])
+            first = [*args.curves, *args.heldout][0]
+            costs = step_costs({r: recipes[r] for r in args.recipes}, known[first][0])
             base = costs[args.recipes[0]]
-            print(f"seconds per step on {args.curves[0]} (interleaved; load {os.getloadavg()[0]:.1f}):")
+            print(f"seconds per step on {first} (interleaved; load {os.getloadavg()[0]:.1f}):")
             for name, c in costs.items():
                 print(f"  {name:12s} {c * 1e3:8.1f} ms  ({c / base:.2f}× {args.recipes[0]})")
             return
