@@ -54,7 +54,7 @@ from deepcurrents.eval.metrics import mass_to_area
 from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.experiments.runner import build, instantiate
 from deepcurrents.geometry import circle, load_boundary
-from deepcurrents.models.current_module import input_frame
+from deepcurrents.models.current_module import input_frame, metrics_in_input_units
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -417,11 +417,8 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
     ``final`` also the run's own final evaluation of the last copy (``final_*`` keys: its mass estimate with the
     recipe's evaluation settings, e.g. refined where a sharpened current's mesh is, its mesh and its seconds)."""
     current = module.current.eval()
-    # areas in the curve's own units: a curve beyond the safe box is trained scaled (data.normalize=auto), and
-    # its exact area is the input's
     frame = input_frame(module.hparams.boundary)
-    units = frame[0] ** 2 if frame is not None else 1.0
-    scale = mass_to_area(1.0, 3, current.alpha_scale) * units
+    scale = mass_to_area(1.0, 3, current.alpha_scale)
     gen = torch.Generator().manual_seed(12345)
     x = torch.rand(4 * mass_samples, 3, generator=gen) * 2.0 - 1.0
     with torch.no_grad():
@@ -432,20 +429,26 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
         last = i == len(copies) - 1
         n = len(x) if last else mass_samples
         mass, stderr = uniform_mass(current, x[:n], alpha[:n])
-        row = {k: v for k, v in rec.items() if k != "state"}
-        row.update(mass_area=mass * scale, mass_area_stderr=stderr * scale, ratio=mass * scale / exact)
+        areas = {"mass_area": mass * scale, "mass_area_stderr": stderr * scale}
         if last and mesh:
             t = time.perf_counter()
             opts = {k: v for k, v in dict(cfg.evaluation.mesh).items() if k != "method"}
             opts.update(resolution=mesh_resolution, method="phase")
             with torch.no_grad():
                 result = extract_surface(current, **opts)
-            area = float(result.mesh.area) * units
-            row.update(mesh_area=area, mesh_error=area / exact - 1.0, mesh_seconds=time.perf_counter() - t)
             # the same current concentrated onto its meshed level (eval.certificate): again an upper bound
             sharp, sharp_err = sharpened_mass_estimate(current, mesh_sampler(result.mesh), result.level + math.pi,
                                                        kappa=16.0, num_samples=1 << 18)
-            row.update(sharpened_ratio=sharp * units / exact, sharpened_ratio_stderr=sharp_err * units / exact)
+            areas.update(mesh_area=float(result.mesh.area), mesh_seconds=time.perf_counter() - t,
+                         mass_area_sharpened=sharp, mass_area_sharpened_stderr=sharp_err)
+        if frame is not None:  # trained scaled into the safe box (data.normalize=auto): the curve's units, as
+            areas = metrics_in_input_units(areas, *frame)  # metrics.json's, which the exact area is in
+        row = {k: v for k, v in rec.items() if k != "state"}
+        row.update(areas, ratio=areas["mass_area"] / exact)
+        if "mesh_area" in areas:
+            row.update(mesh_error=areas["mesh_area"] / exact - 1.0,
+                       sharpened_ratio=areas["mass_area_sharpened"] / exact,
+                       sharpened_ratio_stderr=areas["mass_area_sharpened_stderr"] / exact)
         if last and final:
             # what the run itself reports (metrics.json): a concentrated current's |ω| lives in a thin shell that
             # 2^18 uniform samples score to ± 2–4 %, where the recipe's refined estimate reaches 0.75 %
