@@ -8,9 +8,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from scipy.integrate import quad
 
-from deepcurrents.geometry import load_boundary
+from deepcurrents.eval.metrics import mass_to_area
+from deepcurrents.experiments.runner import build
+from deepcurrents.geometry import biot_savart, load_boundary
+from deepcurrents.models.current_module import input_frame
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -93,13 +97,6 @@ def test_score_gives_areas_in_the_curve_own_units_for_a_normalised_curve(tmp_pat
     scores must be areas in the star's own units, like metrics.json's. Untrained (zero output layer), ω = s·α of the
     scaled curve; the same uniform samples mapped back to the star's frame and α of the star itself, computed there,
     give ∫_{U'} |s·α| = scale² ∫_U |s·α_model| independently of how the benchmark converts."""
-    import torch
-
-    from deepcurrents.eval.metrics import mass_to_area
-    from deepcurrents.experiments.runner import build
-    from deepcurrents.geometry import biot_savart
-    from deepcurrents.models.current_module import input_frame
-
     ttq = _benchmark()
     path, exact = ttq.curves(tmp_path)["star"]
     cfg = ttq.compose_cfg(["experiment=minimal_curve", f"data.curve={path}", "preset=cpu"])
