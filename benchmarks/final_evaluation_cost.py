@@ -10,7 +10,8 @@ on a shared machine, run it alternately from each (``git worktree add /tmp/old <
 ``PYTHONPATH=/tmp/old/src python benchmarks/final_evaluation_cost.py …``): the ratios, not the seconds, are
 comparable. ``--mass-refine 1`` evaluates with the plain mass estimate (``evaluation.mass_refine``),
 ``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``), ``--mass-refine-mesh 0|1`` without or
-with the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it).
+with the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it), ``--mass-tube-radius 0``
+without the tube about Γ (``evaluation.mass_tube_radius``).
 ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
 """
 
@@ -60,6 +61,8 @@ def main() -> None:
                     help="evaluation.mass_rel_stderr for this evaluation (default: the run's)")
     ap.add_argument("--mass-refine-mesh", type=int, choices=(0, 1), default=None,
                     help="evaluation.mass_refine_mesh for this evaluation (default: the run's)")
+    ap.add_argument("--mass-tube-radius", type=float, default=None,
+                    help="evaluation.mass_tube_radius for this evaluation (default: the run's; 0 = no tube)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     module = load_module(args.ckpt)
@@ -69,6 +72,8 @@ def main() -> None:
         module.evaluation["mass_refine_mesh"] = bool(args.mass_refine_mesh)
     if args.mass_rel_stderr is not None:
         module.evaluation["mass_rel_stderr"] = args.mass_rel_stderr
+    if args.mass_tube_radius is not None:
+        module.evaluation["mass_tube_radius"] = args.mass_tube_radius
     cfg = OmegaConf.create(module.run_config)
     load = os.getloadavg()[0]
     before = step_seconds(cfg)

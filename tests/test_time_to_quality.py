@@ -240,6 +240,8 @@ def test_mass_estimate_stops_at_the_requested_precision():
     assert info["samples"] == 1 << 13
     with pytest.raises(ConfigError, match=r"evaluation\.mass_rel_stderr="):
         validate_config(compose_cfg(["evaluation.mass_rel_stderr=-1"]))
+    with pytest.raises(ConfigError, match=r"evaluation\.mass_tube_radius="):
+        validate_config(compose_cfg(["evaluation.mass_tube_radius=-0.01"]))
     with pytest.raises(ConfigError, match=r"evaluation\.mass_refine=0 must be a positive integer"):
         validate_config(compose_cfg(["evaluation.mass_refine=0"]))
     with pytest.raises(ConfigError, match=r"evaluation\.mass_refine_mesh='yes' must be true or false"):
@@ -422,6 +424,35 @@ def test_mass_estimate_refined_near_the_boundary_is_unbiased_and_tighter():
     on_axis = torch.stack(torch.meshgrid(torch.arange(16), torch.arange(16), torch.arange(16), indexing="ij"), -1)
     on_axis = torch.isin(on_axis.reshape(-1, 3)[:, :2], torch.tensor([7, 8])).all(1)
     assert bool(near[on_axis].all()) and int(near.sum()) < 16 * 16 * 16 // 8
+
+
+def test_mass_estimate_with_the_tube_about_the_boundary_is_unbiased_honest_and_tighter():
+    """The points within 0.02 of Γ integrated apart by samples of density ∝ 1/r about it (``tube_radius``): over 64
+    seeds the estimates of E(1/ρ) centre on the exact 2 asinh(1) (Γ's tube pokes out of U: those samples count 0),
+    scatter under half as much as with the refinement alone and their reported errors are honest (z-scores' RMS
+    within 0.75–1.35, where the refinement alone's are optimistic); the tube's samples count as evaluations."""
+    import statistics
+
+    from deepcurrents.eval.metrics import boundary_segments, cells_near_boundary, mass_estimate
+
+    exact = 2 * math.asinh(1.0)
+    errors: dict[float, list[float]] = {0.0: [], 0.02: []}
+    z = []
+    for radius, errs in errors.items():
+        for seed in range(64):
+            info: dict = {}
+            mean, err = mass_estimate(_AxisField(), 1 << 12, seed=seed, chunk_size=1 << 12, refine=3,
+                                      tube_radius=radius, info=info)
+            errs.append(mean - exact)
+            if radius:
+                z.append((mean - exact) / err)
+        assert info["samples"] == 1 << 12
+    near = int(cells_near_boundary(16, 3, boundary_segments(_AxisField())).sum())
+    assert info["evaluations"] == (1 << 12) + near * (27 - 1) + (1 << 12) // 8  # refined cells' and the tube's
+    spread = {r: statistics.pstdev(errs) for r, errs in errors.items()}
+    assert spread[0.02] < 0.5 * spread[0.0]
+    assert abs(statistics.mean(errors[0.02])) < 3 * spread[0.02] / math.sqrt(64)
+    assert 0.75 < statistics.mean(v * v for v in z) ** 0.5 < 1.35
 
 
 class _SheetField(torch.nn.Module):

@@ -85,9 +85,10 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "evaluation.mesh.strip_rows")
     _positive_int(cfg, "evaluation.curve.resolution", 8)
     _positive_int(cfg, "callbacks.model_checkpoint.every_n_train_steps")
-    for key in ("evaluation.mass_rel_stderr", "evaluation.mesh.delta", "evaluation.mesh.boundary_tube",
-                "evaluation.mesh.padding", "evaluation.mesh.level_blend", "evaluation.sharpened.kappa",
-                "evaluation.sharpened.samples", "evaluation.curve.delta", "evaluation.curve.boundary_tube"):
+    for key in ("evaluation.mass_rel_stderr", "evaluation.mass_tube_radius", "evaluation.mesh.delta",
+                "evaluation.mesh.boundary_tube", "evaluation.mesh.padding", "evaluation.mesh.level_blend",
+                "evaluation.sharpened.kappa", "evaluation.sharpened.samples", "evaluation.curve.delta",
+                "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
     refine_mesh = OmegaConf.select(cfg, "evaluation.mass_refine_mesh")
     if refine_mesh not in (None, True, False):

@@ -3,6 +3,7 @@ and exact distances through libigl's AABB tree on the CPU (for many points again
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -135,3 +136,72 @@ def resample_loop(loop: np.ndarray, n: int, corner_degrees: float = 30.0) -> np.
     idx = np.clip(np.searchsorted(arc, positions, side="right") - 1, 0, m - 1)
     frac = (positions - arc[idx]) / np.maximum(lengths[idx], 1e-300)
     return closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
+
+
+def _segment_frames(starts: torch.Tensor, ends: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Unit direction d and two unit normals e1, e2 (d, e1, e2 orthonormal) of each segment. → 3 × (S, 3)"""
+    d = ends - starts
+    d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-30)
+    axis = torch.zeros_like(d)
+    axis[torch.arange(len(d)), d.abs().argmin(dim=-1)] = 1.0  # the axis least aligned with d
+    e1 = torch.linalg.cross(d, axis)
+    e1 = e1 / e1.norm(dim=-1, keepdim=True)
+    return d, e1, torch.linalg.cross(d, e1)
+
+
+def tube_density(points: torch.Tensor, starts: torch.Tensor, ends: torch.Tensor, radius: float,
+                 chunk_size: int | None = None) -> torch.Tensor:
+    """The density q(x) of ``sample_tube``'s points: Σ over the segments j whose cylinder C_j (the points
+    projecting onto the segment itself, 0 ≤ t_j ≤ 1, at distance r_j < ``radius`` from its line) holds x of
+    1 / (2π L radius r_j(x)), L the total length of the segments; 0 outside the tube T = ∪_j C_j. Where
+    cylinders overlap (the inside of a bend, two parts of Γ closer than 2·radius) their densities add; the
+    wedges outside a bend, within ``radius`` of a vertex but in no cylinder, are not in T.
+
+    points (N, 3); starts, ends (S, 3) → (N,) in points' dtype."""
+    starts, ends = starts.to(points), ends.to(points)
+    seg = ends - starts
+    length = seg.norm(dim=-1)
+    total = float(length.sum())
+    len2 = (length * length).clamp_min(1e-30)
+    if chunk_size is None:
+        chunk_size = max(256, (1 << 22) // max(1, starts.shape[0]))
+    out = []
+    for p in torch.split(points, chunk_size):
+        rel = p.unsqueeze(1) - starts.unsqueeze(0)  # (n, S, 3)
+        t = (rel * seg).sum(-1) / len2
+        r2 = ((rel - t.unsqueeze(-1) * seg) ** 2).sum(-1)
+        inside = (t >= 0.0) & (t <= 1.0) & (r2 < radius * radius) & (length > 0)
+        inv_r = torch.where(inside, r2.clamp_min(1e-300).rsqrt(), torch.zeros_like(r2))
+        out.append(inv_r.sum(1) / (2.0 * math.pi * total * radius))
+    return torch.cat(out) if out else points.new_zeros(0)
+
+
+def sample_tube(starts: torch.Tensor, ends: torch.Tensor, radius: float, n: int,
+                generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """n points of the tube T of ``tube_density`` around the segments: a segment with probability ∝ its length,
+    a uniform position along it, a distance uniform in [0, radius) from it and a uniform angle about it. Their
+    density ∝ 1/r near Γ is what makes E[g/q] over them finite-variance for integrands g ∼ 1/r (a current's
+    |ω| next to Γ), where uniform samples' variance diverges.
+
+    starts, ends (S, 3) → points (n, 3), their density q (n,) (``tube_density``), in starts' dtype on the CPU."""
+    starts, ends = starts.detach().cpu(), ends.detach().cpu()
+    length = (ends - starts).norm(dim=-1)
+    j = torch.multinomial(length.double() / length.sum(), n, replacement=True, generator=generator)
+    u = torch.rand(n, 3, generator=generator, dtype=starts.dtype)
+    d, e1, e2 = _segment_frames(starts, ends)
+    r = radius * u[:, 1:2]
+    angle = 2.0 * math.pi * u[:, 2:3]
+    x = starts[j] + u[:, :1] * (ends[j] - starts[j]) + r * (angle.cos() * e1[j] + angle.sin() * e2[j])
+    return x, tube_density(x, starts, ends, radius)
+
+
+def in_tube(points: torch.Tensor, starts: torch.Tensor, ends: torch.Tensor, radius: float) -> torch.Tensor:
+    """Whether each point lies in ``tube_density``'s tube T (3D): the few within ``radius`` of Γ, found through
+    libigl's tree (``segment_distance``), are tested against every cylinder. points (N, 3) → (N,) bool, CPU."""
+    p = points.detach().cpu().double()
+    s, e = starts.detach().cpu().double(), ends.detach().cpu().double()
+    out = torch.zeros(len(p), dtype=torch.bool)
+    near = torch.from_numpy(segment_distance(p.numpy(), s.numpy(), e.numpy()) < radius)
+    if bool(near.any()):
+        out[near] = tube_density(p[near], s, e, radius) > 0
+    return out
