@@ -9,7 +9,8 @@ estimate of that uniform mean whatever the sampling density.
   centre, so cells around Γ, where |α| ~ 1/r, get more samples). With the batch's mixture density q,
   weight w(x) = 1 / (vol(U) q(x)) = 1 / (u + (1 − u) C p_c), so E_q[w |ω|] = E_uniform[|ω|]: the loss is
   still the mass (the balance-heuristic estimator of multiple importance sampling, exact with fixed counts).
-  The final mass bound is evaluated with uniform samples all the same (eval.metrics.mass_estimate).
+  The final mass bound is evaluated without these scores all the same (eval.metrics.mass_estimate: stratified
+  uniform samples, and a tube about Γ sampled by a density fixed by Γ alone).
 """
 
 from __future__ import annotations
