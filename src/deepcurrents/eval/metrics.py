@@ -14,10 +14,10 @@ from deepcurrents.eval.device import device_of
 from deepcurrents.geometry.biot_savart import loop_segments
 from deepcurrents.geometry.polyline import (
     closed_loop_segments,
-    in_tube,
     polyline_hausdorff,
     project_to_segments,
     sample_tube,
+    tube_density,
 )
 from deepcurrents.geometry.topology import border_edges
 
@@ -186,7 +186,7 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
         m = norm_of_omega(x)
         evaluated += len(m)
         if tube is not None:
-            m = m.masked_fill(in_tube(x, *tube, tube_radius).to(m.device), 0.0)
+            m = m.masked_fill(tube_density(x, *tube, tube_radius).to(m.device) > 0, 0.0)
             xt, q = sample_tube(*tube, tube_radius, max(2, int(n * tube_fraction)), gen)
             w = norm_of_omega(xt.to(x.dtype)) / q.to(dev)  # each an unbiased estimate of ∫_T∩U |ω| dx
             w = w.masked_fill((xt.abs() > 1.0).any(-1).to(w.device), 0.0)

@@ -1,5 +1,6 @@
 """Closest points on polylines (Γ): brute force in torch (any device, with the segment and its parameter),
-and exact distances through libigl's AABB tree on the CPU (for many points against many segments)."""
+and exact distances through libigl's AABB tree on the CPU (for many points against many segments); the tube
+of points near Γ, its sampling density and samples (the final mass estimate integrates it apart)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from dataclasses import dataclass
 import igl
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 
 @dataclass
@@ -149,31 +151,31 @@ def _segment_frames(starts: torch.Tensor, ends: torch.Tensor) -> tuple[torch.Ten
     return d, e1, torch.linalg.cross(d, e1)
 
 
-def tube_density(points: torch.Tensor, starts: torch.Tensor, ends: torch.Tensor, radius: float,
-                 chunk_size: int | None = None) -> torch.Tensor:
+def tube_density(points: torch.Tensor, starts: torch.Tensor, ends: torch.Tensor, radius: float) -> torch.Tensor:
     """The density q(x) of ``sample_tube``'s points: Σ over the segments j whose cylinder C_j (the points
     projecting onto the segment itself, 0 ≤ t_j ≤ 1, at distance r_j < ``radius`` from its line) holds x of
     1 / (2π L radius r_j(x)), L the total length of the segments; 0 outside the tube T = ∪_j C_j. Where
     cylinders overlap (the inside of a bend, two parts of Γ closer than 2·radius) their densities add; the
-    wedges outside a bend, within ``radius`` of a vertex but in no cylinder, are not in T.
+    wedges outside a bend, within ``radius`` of a vertex but in no cylinder, are not in T. Only the segments
+    whose midpoint is within reach of a point are tested (a k-d tree's pairs), not all of them.
 
-    points (N, 3); starts, ends (S, 3) → (N,) in points' dtype."""
-    starts, ends = starts.to(points), ends.to(points)
-    seg = ends - starts
-    length = seg.norm(dim=-1)
-    total = float(length.sum())
-    len2 = (length * length).clamp_min(1e-30)
-    if chunk_size is None:
-        chunk_size = max(256, (1 << 22) // max(1, starts.shape[0]))
-    out = []
-    for p in torch.split(points, chunk_size):
-        rel = p.unsqueeze(1) - starts.unsqueeze(0)  # (n, S, 3)
-        t = (rel * seg).sum(-1) / len2
-        r2 = ((rel - t.unsqueeze(-1) * seg) ** 2).sum(-1)
-        inside = (t >= 0.0) & (t <= 1.0) & (r2 < radius * radius) & (length > 0)
-        inv_r = torch.where(inside, r2.clamp_min(1e-300).rsqrt(), torch.zeros_like(r2))
-        out.append(inv_r.sum(1) / (2.0 * math.pi * total * radius))
-    return torch.cat(out) if out else points.new_zeros(0)
+    points (N, 3); starts, ends (S, 3) → (N,) in points' dtype and device (computed in float64 on the CPU)."""
+    p = points.detach().cpu().double().numpy()
+    a = starts.detach().cpu().double().numpy()
+    seg = ends.detach().cpu().double().numpy() - a
+    length = np.linalg.norm(seg, axis=-1)
+    q = np.zeros(len(p))
+    if len(p) and length.max() > 0:
+        reach = radius + 0.5 * float(length.max())  # every point of C_j is within this of its midpoint
+        pairs = cKDTree(p).sparse_distance_matrix(cKDTree(a + 0.5 * seg), reach, output_type="ndarray")
+        i, j = pairs["i"], pairs["j"]
+        rel = p[i] - a[j]
+        t = (rel * seg[j]).sum(-1) / np.maximum(length[j] ** 2, 1e-30)
+        r2 = ((rel - t[:, None] * seg[j]) ** 2).sum(-1)
+        inside = (t >= 0.0) & (t <= 1.0) & (r2 < radius * radius) & (length[j] > 0)
+        np.add.at(q, i[inside], 1.0 / np.sqrt(np.maximum(r2[inside], 1e-300)))
+        q /= 2.0 * math.pi * float(length.sum()) * radius
+    return torch.from_numpy(q).to(device=points.device, dtype=points.dtype)
 
 
 def sample_tube(starts: torch.Tensor, ends: torch.Tensor, radius: float, n: int,
@@ -194,14 +196,3 @@ def sample_tube(starts: torch.Tensor, ends: torch.Tensor, radius: float, n: int,
     x = starts[j] + u[:, :1] * (ends[j] - starts[j]) + r * (angle.cos() * e1[j] + angle.sin() * e2[j])
     return x, tube_density(x, starts, ends, radius)
 
-
-def in_tube(points: torch.Tensor, starts: torch.Tensor, ends: torch.Tensor, radius: float) -> torch.Tensor:
-    """Whether each point lies in ``tube_density``'s tube T (3D): the few within ``radius`` of Γ, found through
-    libigl's tree (``segment_distance``), are tested against every cylinder. points (N, 3) → (N,) bool, CPU."""
-    p = points.detach().cpu().double()
-    s, e = starts.detach().cpu().double(), ends.detach().cpu().double()
-    out = torch.zeros(len(p), dtype=torch.bool)
-    near = torch.from_numpy(segment_distance(p.numpy(), s.numpy(), e.numpy()) < radius)
-    if bool(near.any()):
-        out[near] = tube_density(p[near], s, e, radius) > 0
-    return out
