@@ -455,6 +455,16 @@ def test_mass_estimate_with_the_tube_about_the_boundary_is_unbiased_honest_and_t
     assert 0.75 < statistics.mean(v * v for v in z) ** 0.5 < 1.35
 
 
+def test_mass_estimate_settings_keep_an_older_run_without_the_tube():
+    """A run's evaluation node gives mass_estimate its tube radius; one written before the key existed (no
+    mass_tube_radius) evaluates without the tube, as it did."""
+    from deepcurrents.eval.metrics import mass_estimate_settings
+
+    assert mass_estimate_settings({"mass_refine": 3, "mass_tube_radius": 0.02})["tube_radius"] == 0.02
+    assert mass_estimate_settings({"mass_refine": 3})["tube_radius"] == 0.0
+    assert compose_cfg([]).evaluation.mass_tube_radius == 0.02
+
+
 class _SheetField(torch.nn.Module):
     """|ω(x)| = g(z), a unit Gaussian of σ = 0.01 across the plane z = 0.3 (a current concentrated on one sheet, as a
     sharpened one is), Γ a short segment far from it. E|ω| over U = [-1, 1]³ is (4/8)·∫_{-1}^{1} g(z) dz = ½."""

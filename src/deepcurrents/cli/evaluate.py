@@ -81,7 +81,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
         else:
             mesh = extract_surface(current, **mesh_settings(module, cfg.shape, resolution=cfg.resolution)).mesh
             mesh.export(out / "mesh.ply")
-    # the run's own estimate (its sample count, early stop and refinement near Γ and its mesh), or exactly
+    # the run's own estimate (its sample count, early stop, refinement near Γ and its mesh, tube about Γ), or exactly
     # mass_samples
     settings = mass_estimate_settings(evaluation, mesh)
     if cfg.mass_samples is not None:
