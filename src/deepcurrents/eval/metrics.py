@@ -143,14 +143,13 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
         raise ValueError(f"refine={refine} must be at least 1.")
     dev = device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
-    segments = boundary_segments(current) if refine > 1 else None
+    boundary = boundary_segments(current) if refine > 1 or tube_radius > 0 else None
+    segments = boundary if refine > 1 else None
     points = refine_points if refine > 1 and refine_points is not None and len(refine_points) else None
     refined: dict[int, tuple | None] = {}  # per grid side k, found once: (the refined cells, their corners)
-    tube = None
-    if tube_radius > 0:
-        tube = boundary_segments(current) if current.dim == 3 else None
-        if tube is not None and not float((tube[1] - tube[0]).norm(dim=-1).sum()) > 0:
-            tube = None
+    tube = None  # Γ's segments when the tube about them is integrated apart (3D loops of positive length)
+    if tube_radius > 0 and current.dim == 3 and boundary is not None:
+        tube = boundary if float((boundary[1] - boundary[0]).norm(dim=-1).sum()) > 0 else None
 
     def norm_of_omega(x: torch.Tensor) -> torch.Tensor:
         x = x.to(dev)

@@ -140,15 +140,15 @@ def resample_loop(loop: np.ndarray, n: int, corner_degrees: float = 30.0) -> np.
     return closed[idx] + frac[:, None] * (closed[idx + 1] - closed[idx])
 
 
-def _segment_frames(starts: torch.Tensor, ends: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Unit direction d and two unit normals e1, e2 (d, e1, e2 orthonormal) of each segment. → 3 × (S, 3)"""
+def _segment_normals(starts: torch.Tensor, ends: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Two unit normals e1, e2 of each segment (with its direction d, (d, e1, e2) is orthonormal). → 2 × (S, 3)"""
     d = ends - starts
     d = d / d.norm(dim=-1, keepdim=True).clamp_min(1e-30)
     axis = torch.zeros_like(d)
     axis[torch.arange(len(d)), d.abs().argmin(dim=-1)] = 1.0  # the axis least aligned with d
     e1 = torch.linalg.cross(d, axis)
     e1 = e1 / e1.norm(dim=-1, keepdim=True)
-    return d, e1, torch.linalg.cross(d, e1)
+    return e1, torch.linalg.cross(d, e1)
 
 
 def tube_density(points: torch.Tensor, starts: torch.Tensor, ends: torch.Tensor, radius: float) -> torch.Tensor:
@@ -190,9 +190,8 @@ def sample_tube(starts: torch.Tensor, ends: torch.Tensor, radius: float, n: int,
     length = (ends - starts).norm(dim=-1)
     j = torch.multinomial(length.double() / length.sum(), n, replacement=True, generator=generator)
     u = torch.rand(n, 3, generator=generator, dtype=starts.dtype)
-    d, e1, e2 = _segment_frames(starts, ends)
+    e1, e2 = _segment_normals(starts, ends)
     r = radius * u[:, 1:2]
     angle = 2.0 * math.pi * u[:, 2:3]
     x = starts[j] + u[:, :1] * (ends[j] - starts[j]) + r * (angle.cos() * e1[j] + angle.sin() * e2[j])
     return x, tube_density(x, starts, ends, radius)
-
