@@ -292,7 +292,7 @@ def test_the_quick_start_is_the_fast_recipe_at_1500_steps():
     assert len(run) == 1 and "experiment=minimal_trefoil preset=cpu" in run[0]
     cfg = compose_cfg(["experiment=minimal_trefoil", "preset=cpu", defaults["RUN_RECIPE"],
                        f"trainer.max_steps={defaults['RUN_STEPS']}"])
-    assert cfg.model.net.phase_sharpening == 2.0 and cfg.model.net.phase_sharpening_start == 0.7
+    assert cfg.model.net.phase_sharpening == 2.0 and cfg.model.net.phase_sharpening_start == 0.85
     assert cfg.data.sampling.kind == "importance" and cfg.evaluation.mass_refine_mesh is True
     plain = compose_cfg(["experiment=minimal_trefoil", "preset=cpu"])
     assert plain.model.net.phase_sharpening == 0 and plain.data.sampling.kind == "uniform"
