@@ -30,9 +30,10 @@ DATA_BODIES ?= 100
 data: $(ANNY_STAMP)
 	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
 
-# the quick start: 1500 steps of preset=cpu with recipe=sharp, the fast recipe (README "Looking at results": 77-86 s
-# whole, mass bound 1.059 x the trefoil's 0.737, mesh 0.7375; the former quick start, 2000 steps of preset=cpu
-# alone, 83-106 s, 1.135, 0.7361); `make run RUN_STEPS=2000` 1.021 in 92-117 s; `make run RUN_RECIPE=` runs
+# the quick start: 1500 steps of preset=cpu with recipe=sharp, the fast recipe (README "Looking at results": 59.3 s
+# whole on an idle, fast VM, mass bound 1.033 x the trefoil's 0.737, mesh 0.7352; the former quick start, 2000 steps
+# of preset=cpu alone, 83-106 s, 1.135, 0.7361); `make run RUN_STEPS=2000` 1.021 in 92-117 s (the recipe from 70 %,
+# before its clipping); `make run RUN_RECIPE=` runs
 # preset=cpu alone, `make run RUN_RECIPE= RUN_STEPS=3000` the preset's whole budget
 RUN_STEPS ?= 1500
 RUN_RECIPE ?= recipe=sharp
