@@ -1,7 +1,7 @@
 """Time to quality: several training recipes side by side in one process, quality against wall-clock seconds.
 
     python benchmarks/time_to_quality.py --seconds 180 --curves circle05 ellipse tilted_square \\
-        --recipes paper cpu fast [--heldout enneper05 tilted_circle04] [--mesh]
+        --recipes paper cpu fast [--heldout enneper05 tilted_circle04] [--mesh] [--trainer gpu]
 
 Each recipe trains each curve through the real code path (Hydra configs, the DataModule and LightningModule of
 ``train.py``, Lightning with ``trainer.max_time``), one after another in this process; the recipe order turns
@@ -241,11 +241,11 @@ def compose_cfg(overrides: list[str]):
 
 
 def train_recipe(overrides: list[str], seconds: float, num_copies: int, steps: int | None = None,
-                 part: str = "current"):
-    """Trains one recipe for ``seconds`` of wall clock (or ``steps`` steps), copying ``part``'s weights.
-    → (module, cfg, snapshot records)."""
+                 part: str = "current", trainer: str = "cpu"):
+    """Trains one recipe for ``seconds`` of wall clock (or ``steps`` steps) on the ``trainer`` config (cpu, gpu),
+    copying ``part``'s weights. → (module, cfg, snapshot records)."""
     budget = [f"trainer.max_steps={steps}"] if steps else ["trainer.max_steps=-1", f"trainer.max_time={seconds}"]
-    cfg = compose_cfg([*overrides, "logger=none", "trainer=cpu", *budget, "trainer.enable_progress_bar=false",
+    cfg = compose_cfg([*overrides, "logger=none", f"trainer={trainer}", *budget, "trainer.enable_progress_bar=false",
                        "trainer.enable_model_summary=false", "callbacks.model_checkpoint=null", "callbacks.media=null"])
     validate_config(cfg)
     wall0, cpu0 = time.perf_counter(), time.process_time()
@@ -530,6 +530,8 @@ def main() -> None:
     ap.add_argument("--out", default="time_to_quality", help="file stem under benchmarks/results/")
     ap.add_argument("--threads", type=int, default=None,
                     help="torch threads (on a CPU shared with other jobs, 1 avoids threads waiting on each other)")
+    ap.add_argument("--trainer", default="cpu", choices=["cpu", "gpu"],
+                    help="train on the CPU or one CUDA GPU (scoring runs on the CPU either way)")
     args = ap.parse_args()
     if not args.curves and not args.heldout:
         raise SystemExit("give at least one curve: --curves or --heldout")
@@ -573,7 +575,8 @@ def main() -> None:
             for recipe in rotated:
                 load0 = os.getloadavg()[0]
                 module, cfg, copies = train_recipe(["experiment=minimal_curve", f"data.curve={path}",
-                                                    *recipes[recipe]], args.seconds, args.copies, args.steps)
+                                                    *recipes[recipe]], args.seconds, args.copies, args.steps,
+                                                    trainer=args.trainer)
                 load1 = os.getloadavg()[0]
                 scored = score(module, cfg, copies, exact, args.mass_samples, args.mesh, args.mesh_resolution,
                                args.final)
