@@ -3,6 +3,7 @@ fraction of this machine's own fp32 matrix-multiply rate, measured in the same r
 
     python benchmarks/train_step.py [--samples 4096] [--repeats 10] [--device cpu|cuda] [--threads T]
                                     [--net paper|cpu] [--skip-memory] [--no-keep-freed-memory] [--cpu-time]
+                                    [--compile default|reduce-overhead|max-autotune]
 
 Four ways of computing ω = ∇f + α and the loss's gradient, timed interleaved so that all see the same machine
 state: ``closed_form`` (the default of NeuralCurrent: nn/field_gradient.py, one pass with a hand-written
@@ -10,9 +11,11 @@ backward), ``medium`` (the same pass with ``model.net.matmul_precision=medium``:
 a CPU with AMX / AVX512-BF16, TF32 on a GPU; compared both with the IEEE fp32 GEMM rate and with the GEMM rate
 under the same internals), ``features`` (autograd through the MLP, the Fourier features' Jacobian in closed
 form: the previous default) and ``autograd`` (plain double-backward autograd through sin/cos, the authors'
-way). ``--net cpu`` times the network of ``preset=cpu`` (256 frequencies, 3×128) instead. Like a training run,
-the process first lets glibc reuse freed memory (experiments.runner.keep_freed_memory; ``--no-keep-freed-memory``
-to measure without).
+way). ``--net cpu`` times the network of ``preset=cpu`` (256 frequencies, 3×128) instead. ``--compile MODE`` adds
+``compiled``: the default's loss ``current_loss(model(x)[1])`` through ``torch.compile(mode=MODE)`` (backward
+and Adam as in the others; ``reduce-overhead`` replays CUDA graphs on a GPU), with its compile seconds. Like a
+training run, the process first lets glibc reuse freed memory (experiments.runner.keep_freed_memory;
+``--no-keep-freed-memory`` to measure without).
 
 Also measures peak memory of the 2^20-sample mass evaluation. Prints a table and saves JSON under
 benchmarks/results/.
@@ -111,6 +114,21 @@ def make_step(model, opt, samples, device, variant="closed_form"):
     return step
 
 
+def make_compiled_step(model, opt, samples, device, mode):
+    """The default step with its loss through torch.compile (the backward compiled by AOTAutograd, Adam eager)."""
+    loss_fn = torch.compile(lambda x: current_loss(model(x, create_graph=True)[1]), mode=mode)
+
+    def step():
+        x = torch.rand(samples, 3, device=device) * 2 - 1
+        model.gradient, model.matmul_precision = "closed_form", "highest"  # as traced: other variants change them
+        loss = loss_fn(x)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        return loss
+    return step
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--samples", type=int, default=4096)
@@ -120,6 +138,8 @@ def main():
     ap.add_argument("--net", choices=sorted(NETS), default="paper")
     ap.add_argument("--skip-memory", action="store_true")
     ap.add_argument("--no-keep-freed-memory", action="store_true")
+    ap.add_argument("--compile", default=None, choices=["default", "reduce-overhead", "max-autotune"],
+                    help="also time the default step with its loss through torch.compile(mode=...)")
     ap.add_argument("--cpu-time", action="store_true",
                     help="time steps and GEMMs in this process's CPU seconds (with --threads 1: less sensitive to "
                          "other jobs on a shared machine than wall-clock seconds)")
@@ -138,6 +158,17 @@ def main():
     flops = {v: count_flops(step) for v, step in steps.items()}
     for step in steps.values():
         step()
+    compile_seconds = None
+    if args.compile:  # the same FLOPs as the default (the counter cannot see into a compiled graph)
+        steps["compiled"] = make_compiled_step(model, opt, args.samples, device, args.compile)
+        flops["compiled"] = flops["closed_form"]
+        sync(device)
+        t = time.perf_counter()
+        steps["compiled"]()
+        sync(device)
+        compile_seconds = time.perf_counter() - t
+        for _ in range(3):  # CUDA graphs record on the first calls after compiling
+            steps["compiled"]()
     # interleave the variants and GEMM-rate timings so that all see the same machine state
     times: dict[str, list[float]] = {v: [] for v in steps}
     rates, reduced_rates = [], []
@@ -173,6 +204,11 @@ def main():
                    else {f"speedup_vs_{v}": median[v] / median["closed_form"]})
         result.update({f"{v}_step_ms_median": 1e3 * median[v], f"{v}_step_gflop": flops[v] / 1e9, **speedup,
                        f"{v}_fraction_of_gemm_rate": flops[v] / median[v] / rate})
+    if args.compile:
+        result.update({"compile_mode": args.compile, "compile_seconds": compile_seconds,
+                       "compiled_step_ms_median": 1e3 * median["compiled"],
+                       "compiled_speedup": median["closed_form"] / median["compiled"],
+                       "compiled_fraction_of_gemm_rate": flops["compiled"] / median["compiled"] / rate})
     model.gradient, model.matmul_precision = "closed_form", "highest"
     if not args.skip_memory:
         if device.type == "cuda":
@@ -190,7 +226,7 @@ def main():
         print(f"{k:>24}: {v:.4g}" if isinstance(v, float) else f"{k:>24}: {v}")
     out = Path(__file__).parent / "results"
     out.mkdir(exist_ok=True)
-    suffix = "" if args.net == "paper" else f"_{args.net}"
+    suffix = ("" if args.net == "paper" else f"_{args.net}") + (f"_compile-{args.compile}" if args.compile else "")
     (out / f"train_step_{device.type}{suffix}.json").write_text(json.dumps(result, indent=2))
 
 
