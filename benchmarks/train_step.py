@@ -97,31 +97,20 @@ NETS = {"paper": {}, "cpu": {"num_frequencies": 256, "width": 128, "depth": 3}}
 VARIANTS = ("closed_form", "medium", "features", "autograd")
 
 
-def make_step(model, opt, samples, device, variant="closed_form"):
+def make_step(model, opt, samples, device, variant="closed_form", compile_mode=None):
+    """One training step of ``variant``; ``compiled``: the default's loss through torch.compile(mode=compile_mode)
+    (its backward compiled by AOTAutograd, Adam eager)."""
+    compiled = (torch.compile(lambda x: current_loss(model(x, create_graph=True)[1]), mode=compile_mode)
+                if variant == "compiled" else None)
+
     def step():
         x = torch.rand(samples, 3, device=device) * 2 - 1
         if variant == "autograd":
-            omega = autograd_omega(model, x)
-        else:
+            loss = current_loss(autograd_omega(model, x))
+        else:  # set on every call: the variants share the model (and the compiled graph was traced with these)
             model.gradient = "autograd" if variant == "features" else "closed_form"
             model.matmul_precision = "medium" if variant == "medium" else "highest"
-            omega = model(x, create_graph=True)[1]
-        loss = current_loss(omega)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        return loss
-    return step
-
-
-def make_compiled_step(model, opt, samples, device, mode):
-    """The default step with its loss through torch.compile (the backward compiled by AOTAutograd, Adam eager)."""
-    loss_fn = torch.compile(lambda x: current_loss(model(x, create_graph=True)[1]), mode=mode)
-
-    def step():
-        x = torch.rand(samples, 3, device=device) * 2 - 1
-        model.gradient, model.matmul_precision = "closed_form", "highest"  # as traced: other variants change them
-        loss = loss_fn(x)
+            loss = compiled(x) if compiled is not None else current_loss(model(x, create_graph=True)[1])
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
@@ -160,7 +149,7 @@ def main():
         step()
     compile_seconds = None
     if args.compile:  # the same FLOPs as the default (the counter cannot see into a compiled graph)
-        steps["compiled"] = make_compiled_step(model, opt, args.samples, device, args.compile)
+        steps["compiled"] = make_step(model, opt, args.samples, device, "compiled", args.compile)
         flops["compiled"] = flops["closed_form"]
         sync(device)
         t = time.perf_counter()
