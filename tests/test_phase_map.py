@@ -160,3 +160,28 @@ def test_harmonics_opening_first_leave_the_sharpening_closed():
     both.set_progress(0.9)
     both(x, create_graph=False)
     assert math.isfinite(float(both.sharpening_level))
+
+
+def test_loaded_checkpoint_carries_the_opened_harmonics_and_sharpening():
+    """The forward reads Python copies of the gate, κ and whether c is set (no device read per step on a GPU):
+    a state loaded into a fresh current must bring them along, so that it computes what the saved one did."""
+    trained = _current(phase_harmonics=2, phase_harmonics_start=0.5, phase_sharpening=3.0,
+                       phase_sharpening_start=0.5)
+    x = torch.rand(64, 3, dtype=torch.float64) * 2 - 1
+    trained.set_progress(0.6)  # gate and κ half open (ramp 0.2)
+    f_trained, w_trained = trained(x, create_graph=False)  # opens c
+    fresh = _current(phase_harmonics=2, phase_harmonics_start=0.5, phase_sharpening=3.0,
+                     phase_sharpening_start=0.5)
+    f_closed, _ = fresh(x, create_graph=False)
+    assert not torch.allclose(f_closed, f_trained)  # closed: not the trained current
+    fresh.load_state_dict(trained.state_dict())
+    assert float(fresh.sharpening_level) == float(trained.sharpening_level)
+    f_loaded, w_loaded = fresh(x, create_graph=False)
+    assert torch.equal(f_loaded, f_trained) and torch.equal(w_loaded, w_trained)
+    with trained.unsharpened():
+        w_network = trained(x, create_graph=False)[1]
+    assert not torch.allclose(w_network, w_trained)
+    with fresh.unsharpened():  # and the copies follow the buffers through the context
+        assert float(fresh.sharpening) == 0.0
+        assert torch.equal(fresh(x, create_graph=False)[1], w_network)
+    assert float(fresh.sharpening) == float(trained.sharpening) == pytest.approx(3.0 * 0.5)

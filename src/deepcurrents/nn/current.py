@@ -31,6 +31,11 @@ def budget_fraction(key: str, value: object) -> float:
     return float(value)
 
 
+def _read_state_after_loading(module: NeuralCurrent, incompatible_keys) -> None:
+    """``load_state_dict``'s post-hook: the buffers may have changed (``NeuralCurrent._read_state``)."""
+    module._read_state()
+
+
 class NeuralCurrent(nn.Module):
     """A single current ω = ∇f_θ + alpha_scale·α_Γ on [-1, 1]^d with a fixed boundary Γ.
 
@@ -147,11 +152,24 @@ class NeuralCurrent(nn.Module):
                 raise ConfigError("A 2D current needs boundary points and their signs.")
             self.register_buffer("poles", torch.as_tensor(poles).float())
             self.register_buffer("signs", torch.as_tensor(signs).float())
+        self._read_state()
+        self.register_load_state_dict_post_hook(_read_state_after_loading)
+
+    def _read_state(self) -> None:
+        """Python copies of the buffers that the forward branches on (the loops' sizes, the harmonics' gate, κ and
+        whether the level c is set), read once here and after a checkpoint loads: read from the buffers in every
+        step, they would make a GPU step wait for the device (a synchronisation) once per read. The buffers stay the
+        checkpoint's record; they change only through ``set_progress``, ``unsharpened`` and ``_open_sharpening``,
+        which keep both."""
+        self._loop_sizes = self.loop_sizes.tolist() if self.dim == 3 else []
+        self._gate = float(self.harmonic_gate) if self.phase_harmonics else 0.0
+        self._kappa = float(self.sharpening) if self.phase_sharpening else 0.0
+        self._level_set = bool(self.phase_sharpening) and not torch.isnan(self.sharpening_level).item()
 
     @property
     def loops(self) -> list[torch.Tensor]:
         """The boundary loops, list of (M_i, 3) (3D only)."""
-        return list(torch.split(self.vertices, self.loop_sizes.tolist()))
+        return list(torch.split(self.vertices, self._loop_sizes))
 
     def f(self, x: torch.Tensor) -> torch.Tensor:
         """The scalar field f (the network's f_θ, through the harmonics and the sharpening if any). (N, d) → (N,)."""
@@ -181,15 +199,20 @@ class NeuralCurrent(nn.Module):
         def opened(start: float) -> float:
             return min(max((progress - start) / self.HARMONICS_RAMP, 0.0), 1.0)
         if self.phase_harmonics and self.phase_harmonics_start > 0:
-            self.harmonic_gate.fill_(opened(self.phase_harmonics_start))
+            self._gate = opened(self.phase_harmonics_start)
+            self.harmonic_gate.fill_(self._gate)
         if self.phase_sharpening and self.phase_sharpening_start > 0:
-            self.sharpening.fill_(self.phase_sharpening * opened(self.phase_sharpening_start))
+            self._set_kappa(self.phase_sharpening * opened(self.phase_sharpening_start))
+
+    def _set_kappa(self, kappa: float) -> None:
+        """The sharpening's present κ, in its buffer and in the copy the forward reads (``_read_state``)."""
+        self._kappa = float(kappa)
+        self.sharpening.fill_(self._kappa)
 
     def _boundary_angle(self, x: torch.Tensor) -> torch.Tensor | None:
         """u, the boundary's part of the phase, where the harmonics or the sharpening need it now, else None:
         Ω_Γ(x)/2 in 3D (∇u = α/2), Σ_j s_j·angle(x − p_j) in 2D (∇u = α). (N, d) → (N,), no gradient."""
-        harmonics = self.phase_harmonics and float(self.harmonic_gate) > 0.0
-        if not (harmonics or (self.phase_sharpening and float(self.sharpening) > 0.0)):
+        if not (self._gate > 0.0 or self._kappa > 0.0):
             return None
         with torch.no_grad():
             x = x.detach()
@@ -200,11 +223,11 @@ class NeuralCurrent(nn.Module):
         """The network's (f, ω) concentrated onto the level c of its phase (class docstring): (ψ-shifted f,
         ψ'(φ)·ω). f (N,), ω (N, d) or None, u (N,) from ``_boundary_angle`` → ((N,), (N, d) or None);
         differentiable in f and ω."""
-        kappa = float(self.sharpening)
+        kappa = self._kappa
         if kappa == 0.0:  # not open yet (or read unsharpened): ψ is the identity, and c is not set before it opens
             return f, omega
         phase = self._network_phase(f, u)
-        if torch.isnan(self.sharpening_level):
+        if not self._level_set:
             self._open_sharpening()
         level = self.sharpening_level.to(phase.dtype)
         f = f + self._phase_unit * von_mises_offset(phase, level, kappa)
@@ -216,7 +239,7 @@ class NeuralCurrent(nn.Module):
         u = Ω_Γ(x)/2 (∇u = α_Γ/2; computed here unless given, (N,)). (N, 3) → 2 × (N, 2K + 1), no gradient (e
         enters f = Σ_m h_m e_m as data; its x-derivative is added through α)."""
         with torch.no_grad():
-            if float(self.harmonic_gate) == 0.0:  # not open yet: f = h_0, and no solid angle to compute
+            if self._gate == 0.0:  # not open yet: f = h_0, and no solid angle to compute
                 basis = x.new_zeros(x.shape[0], 1 + 2 * self.phase_harmonics)
                 basis[:, 0] = 1.0
                 return basis, torch.zeros_like(basis)
@@ -319,12 +342,12 @@ class NeuralCurrent(nn.Module):
         if not self.phase_sharpening:
             yield self
             return
-        kappa = float(self.sharpening)
-        self.sharpening.fill_(0.0)
+        kappa = self._kappa
+        self._set_kappa(0.0)
         try:
             yield self
         finally:
-            self.sharpening.fill_(kappa)
+            self._set_kappa(kappa)
 
     @property
     def _phase_unit(self) -> float:
@@ -348,6 +371,7 @@ class NeuralCurrent(nn.Module):
         phase = self._network_phase(self._network_f(x, u), u)
         theta = torch.atan2(torch.sin(phase).mean(), torch.cos(phase).mean())
         self.sharpening_level.fill_(float(theta) + torch.pi)
+        self._level_set = True
 
     @torch.no_grad()
     def evaluate(self, x: torch.Tensor, chunk_size: int = 1 << 15, omega: bool = True):

@@ -209,6 +209,7 @@ class ConditionedCurrent(nn.Module):
         loops = [torch.as_tensor(lp, dtype=torch.float32, device=device) for lp in loops]
         self.register_buffer("vertices", torch.cat(loops))
         self.register_buffer("loop_sizes", torch.tensor([len(lp) for lp in loops], dtype=torch.long))
+        self._loop_sizes = [len(lp) for lp in loops]  # what NeuralCurrent.loops splits by (no device read)
         padded, mask = pad_loops([loops])
         with torch.no_grad():
             code = family.code(torch.as_tensor(z, dtype=torch.float32, device=device)[None], padded, mask)[0]
