@@ -16,8 +16,10 @@ then the forward sweep's adjoint downwards (ā_L = f̄ w_o),
 
 That is 5 GEMMs of the first (widest) layer and 6 of each hidden one, every one of them needed (autograd also
 computes the features' own gradient, a sixth wide GEMM nobody uses), plus elementwise passes over (N, width)
-arrays and four over the (N, 2K) features: sin, cos, ∂f/∂φ ⊙ [cos, sin] and ḡ_0. The Fourier features'
-Jacobian is closed form: φ = [sin 2πBx, cos 2πBx] gives ∇f = 2π (g_sin ⊙ cos − g_cos ⊙ sin) B.
+arrays and over the features. Their Jacobian is closed form: φ = [sin 2πBx, cos 2πBx] gives ∇f = 2π h B with
+h = g_sin ⊙ cos − g_cos ⊙ sin (N, K), and its adjoint ḡ_0 = [cos ⊙ v, −sin ⊙ v] with v = 2π ω̄ Bᵀ (N, K), so the
+three-column products run on (N, K) arrays (v by d broadcast passes: MKL's (N, 3) @ (3, K) is bound by writing its
+output) and ḡ_0 is written once.
 
 Why not forward-mode tangents (value and 3 tangents stacked as one (4N, width) GEMM per layer): they cost 4
 GEMMs of each layer forward and 8 backward, 12 against these 5-6, and the wide first layer dominates
