@@ -10,7 +10,7 @@ from torch import nn
 
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import angle_2d, biot_savart, biot_savart_2d
-from deepcurrents.geometry.biot_savart import solid_angle
+from deepcurrents.geometry.biot_savart import segment_table, solid_angle
 from deepcurrents.geometry.phase_map import von_mises_offset, von_mises_slope
 from deepcurrents.nn.field_gradient import check_matmul_precision, closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
@@ -160,8 +160,10 @@ class NeuralCurrent(nn.Module):
         whether the level c is set), read once here and after a checkpoint loads: read from the buffers in every
         step, they would make a GPU step wait for the device (a synchronisation) once per read. The buffers stay the
         checkpoint's record; they change only through ``set_progress``, ``unsharpened`` and ``_open_sharpening``,
-        which keep both."""
+        which keep both. Also forgets α's segment tables (``field``), which follow the loops; nothing else
+        writes the loops."""
         self._loop_sizes = self.loop_sizes.tolist() if self.dim == 3 else []
+        self._segments = {}  # (dtype, device) → the loops' biot_savart.segment_table, made on first use
         self._gate = float(self.harmonic_gate) if self.phase_harmonics else 0.0
         self._kappa = float(self.sharpening) if self.phase_sharpening else 0.0
         self._level_set = bool(self.phase_sharpening) and not torch.isnan(self.sharpening_level).item()
@@ -257,7 +259,10 @@ class NeuralCurrent(nn.Module):
     def field(self, x: torch.Tensor) -> torch.Tensor:
         """α_Γ(x) unscaled, closed form (``geometry.biot_savart``). (N, d) → (N, d)."""
         if self.dim == 3:
-            return biot_savart(x, self.loops)
+            key = (x.dtype, x.device)
+            if key not in self._segments:  # Γ is fixed: its segments once, not in every step
+                self._segments[key] = segment_table(self.loops, x.dtype, x.device)
+            return biot_savart(x, segments=self._segments[key])
         return biot_savart_2d(x, self.poles, self.signs)
 
     def alpha(self, x: torch.Tensor) -> torch.Tensor:
