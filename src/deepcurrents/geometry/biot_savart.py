@@ -132,6 +132,8 @@ def biot_savart(
         For the counter-clockwise unit circle in the xy-plane, α(0) = (0, 0, -2π).
     """
     if segments is None:  # per-segment quantities, once per call (not per chunk)
+        if loops is None:
+            raise ValueError("biot_savart needs the loops or their segment_table (segments=...).")
         segments = segment_table(loops, points.dtype, points.device)
     args = tuple(segments)
     if chunk_size is None:

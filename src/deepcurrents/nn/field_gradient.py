@@ -256,7 +256,8 @@ class _FieldGradient(torch.autograd.Function):
             phi = inputs[0]
             h = g[:, :k] * phi[:, k:base]
             h.addcmul_(g[:, k:base], phi[:, :k], value=-1.0)
-            # (3, K) @ (K, N): MKL is slow at an (N, K) @ (K, 3) product with three output columns
+            # (3, K) @ (K, N): on the Intel VM MKL was 3× slower at the (N, 2K) @ (2K, 3) form (benchmarks/README);
+            # on the AMD VM the two forms are within 5 %
             with matmul_precision_scope(x.device.type, ctx.fast, exact=True):
                 grad = (_scaled_frequencies(freqs) @ h.T).T
             del h
