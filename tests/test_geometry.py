@@ -99,6 +99,20 @@ def test_alpha_is_gradient_of_solid_angle_and_curl_free():
     assert curl.abs().max() < 1e-5 * jac.abs().max()
 
 
+def test_biot_savart_on_a_segments_line_gets_nothing_from_that_segment():
+    """A point on the line through a side of Γ, off the side: that side's dℓ × r is zero, so α is the other sides'
+    field (quadrature), with finite derivatives in the point (float32 and float64)."""
+    square = np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.4, 0.4, 0.1], [0.0, 0.4, 0.0]])
+    on_line = np.array([[0.7, 0.0, 0.0], [-0.25, 0.0, 0.0]])  # beyond either end of the first side
+    quad = -quadrature_biot_savart(on_line, square)
+    for dtype, rtol in ((torch.float64, 1e-9), (torch.float32, 1e-5)):
+        x = torch.tensor(on_line, dtype=dtype, requires_grad=True)
+        alpha = biot_savart(x, [torch.tensor(square, dtype=dtype)])
+        np.testing.assert_allclose(alpha.detach().double().numpy(), quad, rtol=rtol, atol=1e-6)
+        alpha.square().sum().backward()
+        assert torch.isfinite(x.grad).all()
+
+
 def test_biot_savart_is_finite_on_the_curve_and_chunking_is_exact():
     loop = torch.tensor(circle(0.5, n=50))
     on_curve = torch.cat([loop[:5], 0.5 * (loop[:5] + loop[1:6])])  # vertices and segment midpoints

@@ -39,54 +39,54 @@ def _next_vertex(loops: Sequence[torch.Tensor], device: torch.device) -> torch.T
 
 
 def _cross_matrices(t: torch.Tensor) -> torch.Tensor:
-    """B with (t_i × x)_k = (x @ B[k])_i for every segment i: the cross product as three (3, S) matrices,
-    so that t × (v − x) for all point–segment pairs is one matrix product per component. t (S, 3) → (3, 3, S)."""
+    """B with (t_i × x)_k = (x @ B[k])_i for every segment i: the cross product as three (3, S) matrices, so that
+    t × (v − x) for all point–segment pairs is a matrix product (``segment_table``'s line map). t (S, 3) → (3, 3, S)."""
     zero = torch.zeros_like(t[:, 0])
     tx, ty, tz = t.unbind(1)
     # rows: (t × x)_x = ty·z − tz·y, (t × x)_y = tz·x − tx·z, (t × x)_z = tx·y − ty·x
     return torch.stack([torch.stack([zero, -tz, ty]), torch.stack([tz, zero, -tx]), torch.stack([-ty, tx, zero])])
 
 
-def _biot_savart_chunk(points: torch.Tensor, verts: torch.Tensor, nxt: torch.Tensor, t: torch.Tensor,
-                       length: torch.Tensor, t_cross_v: torch.Tensor, t_dot_v: torch.Tensor,
-                       cross_mats: torch.Tensor) -> torch.Tensor:
+def _biot_savart_chunk(points: torch.Tensor, verts: torch.Tensor, nxt: torch.Tensor, length: torch.Tensor,
+                       line_map: torch.Tensor, line_offset: torch.Tensor, plucker: torch.Tensor) -> torch.Tensor:
     """α at points (n, 3) from closed polylines given per segment i (start vertex i, end vertex nxt[i]).
 
-    Everything is an (n, S) matrix, never (n, S, 3): with r0 = v_i − x and r1 = v_nxt − x,
-    t × r0 = t × v_i − t × x and t·r0 = t·v_i − t·x are matrix products, t·r1 = t·r0 + |seg|, |r| is computed
-    once per vertex (each vertex ends one segment and starts the next), and Σ_i w_i (t_i × r0_i) =
-    W (t × v) − (W t) × x. Rounding is that of the direct form, whose r0 = v − x also carries the O(1)
-    coordinates' rounding where r0 is small.
+    Everything is an (n, S) matrix, never (n, S, 3): with r0 = v_i − x and r1 = v_nxt − x, the three components
+    of t × r0 = t × v − t × x and t·r0 = t·v − t·x are one matrix product (n, 3) @ (3, 4S), t·r1 = t·r0 + |seg|,
+    1/|r| is computed once per vertex (each vertex ends one segment and starts the next), and Σ_i w_i (t_i × r0_i)
+    = W (t × v) − (W t) × x, W t and W (t × v) one product with the lines' Plücker coordinates. Rounding is that of
+    the direct form, whose r0 = v − x also carries the O(1) coordinates' rounding where r0 is small.
     """
+    segments = verts.shape[0]
     r2 = None
     for k in range(3):  # |v − x|² per vertex, from the differences themselves (accurate next to Γ)
         d = verts[:, k].unsqueeze(0) - points[:, k : k + 1]
-        r2 = d * d if r2 is None else r2 + d * d
-    rn = r2.clamp_min(1e-30).sqrt()  # (n, S): |r0| of segment i is rn[:, i], |r1| is rn[:, nxt[i]]
-    cross_sq = None
-    for k in range(3):  # |t × r0|², the squared distance to the segment's line
-        c = torch.addmm(t_cross_v[:, k], points, cross_mats[k], alpha=-1.0)
-        cross_sq = c * c if cross_sq is None else cross_sq + c * c
-    t_r0 = torch.addmm(t_dot_v, points, t.T, alpha=-1.0)
-    coef = (t_r0 + length) / rn.index_select(1, nxt) - t_r0 / rn  # index_select: 3.5× faster than rn[:, nxt] here
-    safe = cross_sq > _LINE_EPS
-    # double-where keeps the gradient finite where the denominator vanishes
-    weight = torch.where(safe, coef / torch.where(safe, cross_sq, 1.0), 0.0)  # (n, S)
-    return weight @ t_cross_v - torch.linalg.cross(weight @ t, points, dim=-1)
+        r2 = d * d if r2 is None else r2.addcmul_(d, d)
+    inv = r2.clamp_min_(1e-30).rsqrt_()  # (n, S): 1/|r0| of segment i is inv[:, i], 1/|r1| is inv[:, nxt[i]]
+    lines = torch.addmm(line_offset, points, line_map, alpha=-1.0)  # (n, 4S): [t × r0 (x, y, z) | t · r0]
+    c0, c1, c2 = lines[:, :segments], lines[:, segments:2 * segments], lines[:, 2 * segments:3 * segments]
+    cross_sq = (c0 * c0).addcmul_(c1, c1).addcmul_(c2, c2)  # |t × r0|², the squared distance to the line
+    t_r0 = lines[:, 3 * segments:]
+    # index_select: 3.5× faster than inv[:, nxt] here
+    coef = (t_r0 + length).mul_(inv.index_select(1, nxt)).addcmul_(t_r0, inv, value=-1.0)
+    # on a segment's line: no contribution (coef / ∞ = 0, with a zero gradient, where a division by ~0 would not be)
+    weight = coef / torch.where(cross_sq > _LINE_EPS, cross_sq, torch.inf)  # (n, S)
+    sums = weight @ plucker  # (n, 6): [W (t × v) | W t]
+    return sums[:, :3] - torch.linalg.cross(sums[:, 3:], points, dim=-1)
 
 
 class SegmentTable(NamedTuple):
-    """What ``biot_savart`` needs of the loops' segments (i from vertex i to vertex nxt[i]), computed once per Γ:
-    vertices (S, 3), nxt (S,), unit tangents t (S, 3), lengths (S,), t × v (S, 3), t · v (S,), and the cross
-    product with t as three (3, S) matrices (``_cross_matrices``)."""
+    """What ``biot_savart`` needs of the loops' segments (i from vertex i to vertex nxt[i], unit tangent t_i),
+    computed once per Γ: vertices (S, 3), nxt (S,), lengths (S,); ``line_map`` (3, 4S) and ``line_offset`` (4S,)
+    with offset − x @ map = [t × (v − x) per component | t · (v − x)] for a point x; ``plucker`` (S, 6), the lines'
+    Plücker coordinates [t × v | t]."""
 
     verts: torch.Tensor
     nxt: torch.Tensor
-    t: torch.Tensor
     length: torch.Tensor
-    t_cross_v: torch.Tensor
-    t_dot_v: torch.Tensor
-    cross_mats: torch.Tensor
+    line_map: torch.Tensor
+    line_offset: torch.Tensor
+    plucker: torch.Tensor
 
 
 def segment_table(loops: Sequence[torch.Tensor] | torch.Tensor, dtype: torch.dtype | None = None,
@@ -102,8 +102,11 @@ def segment_table(loops: Sequence[torch.Tensor] | torch.Tensor, dtype: torch.dty
     seg = verts[nxt] - verts
     length = seg.norm(dim=-1)
     t = seg / length.unsqueeze(-1)
-    return SegmentTable(verts, nxt, t, length, torch.linalg.cross(t, verts, dim=-1), (t * verts).sum(-1),
-                        _cross_matrices(t))
+    moment = torch.linalg.cross(t, verts, dim=-1)  # t × v
+    segments = verts.shape[0]
+    line_map = torch.cat([_cross_matrices(t).permute(1, 0, 2).reshape(3, 3 * segments), t.T], dim=1)
+    line_offset = torch.cat([moment.T.reshape(3 * segments), (t * verts).sum(-1)])
+    return SegmentTable(verts, nxt, length, line_map, line_offset, torch.cat([moment, t], dim=1))
 
 
 def biot_savart(
