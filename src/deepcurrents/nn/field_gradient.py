@@ -33,7 +33,6 @@ and ReLU (σ'' = 0).
 from __future__ import annotations
 
 import functools
-import math
 from contextlib import contextmanager
 
 import torch
@@ -41,7 +40,7 @@ from torch import nn
 from torch.autograd.function import once_differentiable
 
 from deepcurrents.errors import ConfigError
-from deepcurrents.nn.fourier import FourierFeatures
+from deepcurrents.nn.fourier import FourierFeatures, scaled_frequencies
 from deepcurrents.nn.mlp import FieldMLP
 
 
@@ -184,9 +183,18 @@ def _activation(z: torch.Tensor, spec: tuple[str, float, float]) -> torch.Tensor
     return nn.functional.softplus(z, beta, threshold)
 
 
-def _scaled_frequencies(freqs: torch.Tensor) -> torch.Tensor:
-    """2π Bᵀ, contiguous (the factor 2π on this small matrix saves a pass over an (N, K) array). (K, d) → (d, K)."""
-    return ((2.0 * math.pi) * freqs.T).contiguous()
+def _swap_halves(w: torch.Tensor, k: int, inverse: bool = False) -> torch.Tensor:
+    """The columns [w_sin, w_cos, w_rest] of a (W, 2K + G) array as [−w_cos, w_sin, w_rest], so that
+    [sin ⊙ v, cos ⊙ v] @ swap(w)ᵀ = [cos ⊙ v, −sin ⊙ v] @ wᵀ; ``inverse``: [w_cos, −w_sin, w_rest]. A new array."""
+    out = torch.empty_like(w)
+    if inverse:
+        out[:, :k] = w[:, k:2 * k]
+        torch.neg(w[:, :k], out=out[:, k:2 * k])
+    else:
+        torch.neg(w[:, k:2 * k], out=out[:, :k])
+        out[:, k:2 * k] = w[:, :k]
+    out[:, 2 * k:] = w[:, 2 * k:]
+    return out
 
 
 class _FieldGradient(torch.autograd.Function):
@@ -211,8 +219,8 @@ class _FieldGradient(torch.autograd.Function):
         if freqs is not None:
             k = freqs.shape[0]
             base = 2 * k
-            proj = x @ freqs.T
-            proj.mul_(2.0 * math.pi)  # the same rounding as FourierFeatures.sin_cos
+            scaled = scaled_frequencies(freqs)  # 2π Bᵀ (d, K)
+            proj = x @ scaled  # the same product as FourierFeatures.sin_cos
             a = x.new_empty(x.shape[0], base + width)
             torch.sin(proj, out=a[:, :k])
             torch.cos(proj, out=a[:, k:base])
@@ -256,10 +264,10 @@ class _FieldGradient(torch.autograd.Function):
             phi = inputs[0]
             h = g[:, :k] * phi[:, k:base]
             h.addcmul_(g[:, k:base], phi[:, :k], value=-1.0)
-            # (3, K) @ (K, N): on the Intel VM MKL was 3× slower at the (N, 2K) @ (2K, 3) form (benchmarks/README);
-            # on the AMD VM the two forms are within 5 %
+            # h @ (2πBᵀ)ᵀ with the (3, K) array transposed as a view: MKL's fast layout for three columns (in a
+            # paper step 0.9 ms against 3.4 for (3, K) @ hᵀ and 4.4 for h @ (K, 3) contiguous; benchmarks/README)
             with matmul_precision_scope(x.device.type, ctx.fast, exact=True):
-                grad = (_scaled_frequencies(freqs) @ h.T).T
+                grad = h @ scaled.T
             del h
         else:
             grad = g[:, :base] if extra is not None else g
@@ -299,18 +307,21 @@ class _FieldGradient(torch.autograd.Function):
         if grad_bar is not None:
             # the reverse sweep's adjoint, from the features up: ḡ_0 = J_φ ω̄ = 2π [cos ⊙ ω̄Bᵀ, −sin ⊙ ω̄Bᵀ]
             omega_bar = grad_bar.unsqueeze(-1)
-            if freqs is not None:
+            swapped = freqs is not None
+            if swapped:
                 k = freqs.shape[0]
                 phi = inputs[0]
                 # v = 2π ω̄ Bᵀ (N, K) as d broadcast passes: MKL's product with an inner dimension of three is
                 # bound by writing its output, and these passes write v once
-                scaled = _scaled_frequencies(freqs)
+                scaled = scaled_frequencies(freqs)
                 v = grad_bar[:, :1] * scaled[0]
                 for c in range(1, scaled.shape[0]):
                     v.addcmul_(grad_bar[:, c:c + 1], scaled[c])
+                # ḡ_0 = [cos ⊙ v, −sin ⊙ v] is written as its halves swapped and unsigned, [sin ⊙ v, cos ⊙ v]: one
+                # broadcast pass over φ; the two products that read it take the swap and the sign on their
+                # (W, 2K) sides instead (_swap_halves)
                 g_bar = v.new_empty(v.shape[0], base + (0 if extra_jac is None else extra_jac.shape[1]))
-                torch.mul(v, phi[:, k:base], out=g_bar[:, :k])
-                torch.mul(v, phi[:, :k], out=g_bar[:, k:base]).neg_()
+                torch.mul(phi[:, :base].view(-1, 2, k), v[:, None], out=g_bar[:, :base].view(-1, 2, k))
                 del v
                 if extra_jac is not None:  # ḡ_e = J_e ω̄
                     g_bar[:, base:] = torch.bmm(extra_jac, omega_bar).squeeze(-1)
@@ -321,8 +332,12 @@ class _FieldGradient(torch.autograd.Function):
             if extra_jac is not None:  # ∂L/∂J_e = g_e ⊗ ω̄
                 jac_bar = g_extra.unsqueeze(-1) * omega_bar.transpose(1, 2)
             for layer in range(depth):
-                w_bar[layer] = deltas[layer].T @ g_bar
-                delta_bar = g_bar @ weights[layer].T
+                if layer == 0 and swapped:  # ḡ_0 swapped: δᵀ ḡ_0 = swap⁻¹(δᵀ ḡ'), ḡ_0 Wᵀ = ḡ' swap(W)ᵀ
+                    w_bar[0] = _swap_halves(deltas[0].T @ g_bar, k, inverse=True)
+                    delta_bar = g_bar @ _swap_halves(weights[0], k).T
+                else:
+                    w_bar[layer] = deltas[layer].T @ g_bar
+                    delta_bar = g_bar @ weights[layer].T
                 g_bar = delta_bar * derivs[layer]
                 if curvatures:
                     z_bar[layer] = delta_bar.mul_(curvatures[layer])

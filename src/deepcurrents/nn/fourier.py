@@ -74,7 +74,7 @@ class FourierFeatures(nn.Module):
 
     def sin_cos(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(sin(2π Bx), cos(2π Bx)), each (N, num_frequencies)."""
-        proj = (2.0 * math.pi) * (x @ self.frequencies.T)
+        proj = x @ scaled_frequencies(self.frequencies)
         if self.weights is None:
             return torch.sin(proj), torch.cos(proj)
         return torch.sin(proj) * self.weights, torch.cos(proj) * self.weights
@@ -88,6 +88,13 @@ class FourierFeatures(nn.Module):
         recompute them and materialise several more (N, 2K) products (see benchmarks/train_step.py).
         """
         return _FourierInputGradient.apply(grad_features, sin, cos, self.frequencies)
+
+
+def scaled_frequencies(frequencies: torch.Tensor) -> torch.Tensor:
+    """2π Bᵀ, contiguous: the features' phases are x @ 2π Bᵀ (the factor on this small matrix instead of a pass
+    over the (N, K) phases; nn.field_gradient's pass uses the same product, so that both round alike).
+    (K, d) → (d, K)."""
+    return ((2.0 * math.pi) * frequencies.T).contiguous()
 
 
 class _FourierInputGradient(torch.autograd.Function):
