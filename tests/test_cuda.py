@@ -68,6 +68,38 @@ def test_current_and_its_loss_gradient_on_cuda(gradient, precision, tolerance):
     assert relative(grad1, grad0) < tolerance
 
 
+def test_a_training_step_on_cuda_never_waits_for_the_gpu():
+    """The model's part of a training step (α from the kept segment table, the closed-form pass, the phase
+    sharpening at a fixed κ, the loss, its backward, Adam) under ``torch.cuda.set_sync_debug_mode("error")``: no
+    host read of a device value, so the host can queue the next step while the GPU runs this one. (Lightning's loop
+    around it reads the loss once a step, ``DeepCurrentsModule.check_finite``: kept, see benchmarks/README.)"""
+    torch.manual_seed(0)
+    model = NeuralCurrent(3, loops=[torch.tensor(loop, dtype=torch.float32) for loop in trefoil()],
+                          num_frequencies=64, width=64, depth=3, phase_sharpening=2.0,
+                          phase_sharpening_start=0.5).cuda()
+    model.set_progress(1.0)  # κ at its full 2: the sharpening is applied
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+
+    def step() -> torch.Tensor:
+        x = torch.rand(4096, 3, device="cuda") * 2 - 1
+        loss = current_loss(model(x, create_graph=True)[1])
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        return loss
+
+    step()  # the first step sets the sharpening's level (one read, once a run) and the kept tables
+    torch.cuda.set_sync_debug_mode("error")
+    try:
+        for _ in range(2):
+            loss = step()
+        with pytest.raises(RuntimeError):  # the mode is on: a read of the loss would be caught
+            float(loss.detach())
+    finally:
+        torch.cuda.set_sync_debug_mode(0)
+    assert math.isfinite(float(loss.detach()))
+
+
 def test_training_on_gpu_then_loading_on_cpu(tmp_path):
     """`trainer=gpu` through train.py's code: the run finishes its steps and evaluation, its phase mesh is the disk of
     the circle (R 0.5) within 1 % (a planar circle's phase mesh is the disk from the start: this checks the GPU run's

@@ -14,6 +14,8 @@ density around a level c (concentration κ; mean 1 over a turn), that mean is ov
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 from scipy.special import i0e, ive
@@ -35,9 +37,17 @@ def von_mises_offset(phase: torch.Tensor, level: float | torch.Tensor, kappa: fl
     (P,) → (P,), the dtype of ``phase``."""
     if kappa == 0.0:
         return torch.zeros_like(phase)
+    orders, coefficients = _offset_terms(float(kappa), phase.dtype, phase.device)
+    return (torch.sin((phase - level)[:, None] * orders) * coefficients).sum(-1)
+
+
+@functools.lru_cache(maxsize=16)
+def _offset_terms(kappa: float, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """The orders n and coefficients 2 I_n(κ)/(n I_0(κ)) of ψ − φ, (T,) each, kept per (κ, dtype, device): a
+    training step at a fixed κ then copies nothing to the device (on a GPU a blocking copy in every step was a
+    synchronisation), and a new κ (the ramp) copies without blocking. Read-only."""
     n = np.arange(1, 1 + max(2, int(7.0 * np.sqrt(kappa)) + 2))
     ratios = ive(n, kappa) / ive(0, kappa)
     n, ratios = n[ratios >= _TERM_TOLERANCE], ratios[ratios >= _TERM_TOLERANCE]
-    coefficients = torch.as_tensor(2.0 * ratios / n, dtype=phase.dtype, device=phase.device)
-    orders = torch.as_tensor(n, dtype=phase.dtype, device=phase.device)
-    return (torch.sin((phase - level)[:, None] * orders) * coefficients).sum(-1)
+    coefficients = torch.as_tensor(2.0 * ratios / n, dtype=dtype).to(device, non_blocking=True)
+    return torch.as_tensor(n, dtype=dtype).to(device, non_blocking=True), coefficients
