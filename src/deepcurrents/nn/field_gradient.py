@@ -19,7 +19,8 @@ computes the features' own gradient, a sixth wide GEMM nobody uses), plus elemen
 arrays and over the features. Their Jacobian is closed form: φ = [sin 2πBx, cos 2πBx] gives ∇f = 2π h B with
 h = g_sin ⊙ cos − g_cos ⊙ sin (N, K), and its adjoint ḡ_0 = [cos ⊙ v, −sin ⊙ v] with v = 2π ω̄ Bᵀ (N, K), so the
 three-column products run on (N, K) arrays (v by d broadcast passes: MKL's (N, 3) @ (3, K) is bound by writing its
-output) and ḡ_0 is written once.
+output) and ḡ_0 is written once, by one broadcast pass over φ as [sin ⊙ v, cos ⊙ v]: the two products that read it
+take the swap of its halves and the sign on W_1's side (``_swap_halves``).
 
 Why not forward-mode tangents (value and 3 tangents stacked as one (4N, width) GEMM per layer): they cost 4
 GEMMs of each layer forward and 8 backward, 12 against these 5-6, and the wide first layer dominates
