@@ -17,7 +17,10 @@ and Adam as in the others; ``reduce-overhead`` replays CUDA graphs on a GPU), wi
 training run, the process first lets glibc reuse freed memory (experiments.runner.keep_freed_memory;
 ``--no-keep-freed-memory`` to measure without).
 
-Also measures peak memory of the 2^20-sample mass evaluation. Prints a table and saves JSON under
+On a CPU it also profiles five default steps: ``products_share_of_step`` (the matrix products' share of the operator
+time, the ceiling that sin, cos, the activations and the other elementwise passes leave the fraction) and
+``products_fraction_of_gemm_rate`` (the fraction over that share: how fast the products themselves run). Also
+measures peak memory of the 2^20-sample mass evaluation. Prints a table and saves JSON under
 benchmarks/results/.
 """
 
@@ -84,6 +87,24 @@ def count_flops(fn) -> int:
     with counter:
         fn()
     return counter.get_total_flops()
+
+
+PRODUCT_OPS = ("aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm")  # the ops whose FLOPs count_flops counts
+
+
+def products_share(fn, repeats: int = 5) -> float:
+    """On a CPU: the matrix products' share of ``fn``'s operator time, from ``torch.profiler`` self times (a ratio
+    within the profiled calls, so a slow spell of the machine cancels; the profiler's overhead lands mostly on the
+    many small elementwise ops, so it is a slight underestimate). It is the ceiling that the other operations leave
+    the step's fraction of the GEMM rate, and that fraction over it is how fast the products themselves run."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(repeats):
+            fn()
+    events = prof.key_averages()
+    return (sum(e.self_cpu_time_total for e in events if e.key in PRODUCT_OPS)
+            / sum(e.self_cpu_time_total for e in events))
 
 
 def autograd_omega(model, x):
@@ -184,6 +205,10 @@ def main():
         "gemm_rate_gflops_median": rate / 1e9, "gemm_rate_gflops_best": max(rates) / 1e9,
         "fraction_of_gemm_rate": flops["closed_form"] / median["closed_form"] / rate,
     }
+    if device.type == "cpu":  # where the rest of the step goes: the products' own rate, and their share as a ceiling
+        share = products_share(steps["closed_form"])
+        result.update({"products_share_of_step": share,
+                       "products_fraction_of_gemm_rate": result["fraction_of_gemm_rate"] / share})
     reduced_rate = statistics.median(reduced_rates)
     result.update({"reduced_gemm_rate_gflops_median": reduced_rate / 1e9,
                    "medium_fraction_of_reduced_gemm_rate": flops["medium"] / median["medium"] / reduced_rate})
