@@ -113,6 +113,19 @@ def test_biot_savart_on_a_segments_line_gets_nothing_from_that_segment():
         assert torch.isfinite(x.grad).all()
 
 
+def test_biot_savart_derivatives_stay_finite_at_and_next_to_vertices_in_float32():
+    """First and second derivatives in the points (gradcheck-style uses of α, e.g. curl checks) at a vertex, 1e-14
+    from one (float32's rounding scale there) and at a trefoil's vertices: finite, as in float64."""
+    square = torch.tensor([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.4, 0.4, 0.1], [0.0, 0.4, 0.0]])
+    loop = torch.tensor(trefoil()[0], dtype=torch.float32)
+    near = torch.tensor([[0.0, 0.0, 0.0], [1e-14, 1e-14, 0.0], [1e-13, 0.0, 0.0], [3e-14, 3e-14, 0.0]])
+    for points, curve in ((near, square), (loop[:5], loop)):
+        x = points.clone().requires_grad_(True)
+        (first,) = torch.autograd.grad(biot_savart(x, [curve]).square().sum(), x, create_graph=True)
+        (second,) = torch.autograd.grad(first.square().sum(), x)
+        assert torch.isfinite(first).all() and torch.isfinite(second).all()
+
+
 def test_biot_savart_is_finite_on_the_curve_and_chunking_is_exact():
     loop = torch.tensor(circle(0.5, n=50))
     on_curve = torch.cat([loop[:5], 0.5 * (loop[:5] + loop[1:6])])  # vertices and segment midpoints

@@ -32,6 +32,20 @@ def test_von_mises_map_is_a_degree_one_map_with_that_slope(kappa):
     assert bool((torch.diff(psi) > -1e-9).all())  # monotone (up to the series kept: terms ≥ 1e-10)
 
 
+def test_von_mises_offset_first_met_in_inference_mode_still_trains():
+    """Its terms are kept per κ: a first call from an evaluation under ``torch.inference_mode`` must not leave
+    inference tensors that a later training step cannot save for its backward; the same values either way."""
+    kappa = 1.2345  # a κ no other test uses, so this call makes its terms
+    phase = torch.linspace(-3.0, 3.0, 17, dtype=torch.float64)
+    with torch.inference_mode():
+        evaluated = von_mises_offset(phase, 0.4, kappa)
+    trained = phase.clone().requires_grad_(True)
+    offset = von_mises_offset(trained, 0.4, kappa)
+    offset.sum().backward()
+    assert torch.equal(offset.detach(), evaluated)
+    assert torch.allclose(trained.grad, von_mises_slope(phase, 0.4, kappa) - 1.0, atol=1e-9)
+
+
 def _current(**kwargs) -> NeuralCurrent:
     torch.manual_seed(0)
     loop = torch.tensor(circle(0.5, n=64)).double()

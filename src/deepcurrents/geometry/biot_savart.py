@@ -62,7 +62,9 @@ def _biot_savart_chunk(points: torch.Tensor, verts: torch.Tensor, nxt: torch.Ten
     for k in range(3):  # |v − x|² per vertex, from the differences themselves (accurate next to Γ)
         d = verts[:, k].unsqueeze(0) - points[:, k : k + 1]
         r2 = d * d if r2 is None else r2.addcmul_(d, d)
-    inv = r2.clamp_min_(1e-30).rsqrt_()  # (n, S): 1/|r0| of segment i is inv[:, i], 1/|r1| is inv[:, nxt[i]]
+    # (n, S): 1/|r0| of segment i is inv[:, i], 1/|r1| is inv[:, nxt[i]]. The floor keeps rsqrt's derivative (∝ inv³)
+    # finite in float32; a point that close to a vertex gets nothing from either of its segments anyway (_LINE_EPS)
+    inv = r2.clamp_min_(1e-24).rsqrt_()
     lines = torch.addmm(line_offset, points, line_map, alpha=-1.0)  # (n, 4S): [t × r0 (x, y, z) | t · r0]
     c0, c1, c2 = lines[:, :segments], lines[:, segments:2 * segments], lines[:, 2 * segments:3 * segments]
     cross_sq = (c0 * c0).addcmul_(c1, c1).addcmul_(c2, c2)  # |t × r0|², the squared distance to the line

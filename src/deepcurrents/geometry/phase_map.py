@@ -45,9 +45,12 @@ def von_mises_offset(phase: torch.Tensor, level: float | torch.Tensor, kappa: fl
 def _offset_terms(kappa: float, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
     """The orders n and coefficients 2 I_n(κ)/(n I_0(κ)) of ψ − φ, (T,) each, kept per (κ, dtype, device): a
     training step at a fixed κ then copies nothing to the device (on a GPU a blocking copy in every step was a
-    synchronisation), and a new κ (the ramp) copies without blocking. Read-only."""
+    synchronisation), and a new κ (the ramp) copies without blocking. Read-only. Made outside inference mode, so
+    that a first call from an evaluation under ``torch.inference_mode`` does not hand later training steps inference
+    tensors that autograd refuses to save."""
     n = np.arange(1, 1 + max(2, int(7.0 * np.sqrt(kappa)) + 2))
     ratios = ive(n, kappa) / ive(0, kappa)
     n, ratios = n[ratios >= _TERM_TOLERANCE], ratios[ratios >= _TERM_TOLERANCE]
-    coefficients = torch.as_tensor(2.0 * ratios / n, dtype=dtype).to(device, non_blocking=True)
-    return torch.as_tensor(n, dtype=dtype).to(device, non_blocking=True), coefficients
+    with torch.inference_mode(False):
+        coefficients = torch.as_tensor(2.0 * ratios / n, dtype=dtype).to(device, non_blocking=True)
+        return torch.as_tensor(n, dtype=dtype).to(device, non_blocking=True), coefficients
