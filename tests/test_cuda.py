@@ -74,7 +74,8 @@ def test_a_training_step_on_cuda_never_waits_for_the_gpu():
     host read of a device value, so the host can queue the next step while the GPU runs this one. (Lightning's loop
     around it reads the loss once a step, ``DeepCurrentsModule.check_finite``: kept, see benchmarks/README.) Written
     after the last GPU run from that run's sync audit, which found only ``von_mises_offset``'s copies (since kept on
-    the device) and that read: not yet run on a GPU."""
+    the device) and that read. Its body has run on an H200 outside pytest (passed; failed with the former blocking
+    copy), not yet through pytest there."""
     torch.manual_seed(0)
     model = NeuralCurrent(3, loops=[torch.tensor(loop, dtype=torch.float32) for loop in trefoil()],
                           num_frequencies=64, width=64, depth=3, phase_sharpening=2.0,
