@@ -46,6 +46,21 @@ def test_fourier_features_values_and_frozen():
     assert abs(big.std().item() - 2.0) < 0.03
 
 
+def test_coarse_to_fine_features_under_a_float64_default_dtype():
+    """A user who sets torch's default dtype to float64 gets coarse-to-fine features in it (the ranks followed the
+    default dtype while their values came in float32, and the constructor failed)."""
+    old = torch.get_default_dtype()
+    torch.set_default_dtype(torch.float64)
+    try:
+        ff = FourierFeatures(3, num_frequencies=16, seed=0, coarse_to_fine=0.5)
+        ff.set_progress(0.1)
+        weights = ff.feature_weights()
+        assert weights.dtype == torch.float64 and 0.0 <= float(weights.min()) and float(weights.max()) <= 1.0
+        assert 0.0 < float(weights.sum()) < 32.0  # some open, some still closed
+    finally:
+        torch.set_default_dtype(old)
+
+
 def test_gradient_matches_finite_differences():
     model = paper_current(num_frequencies=64, width=32, depth=2).double()
     x = torch.rand(6, 3, dtype=torch.float64) * 1.6 - 0.8

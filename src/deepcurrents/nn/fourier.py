@@ -38,7 +38,7 @@ class FourierFeatures(nn.Module):
             # rank of each frequency by |B_k| in [0, 1): the order in which they open
             order = torch.argsort(freqs.norm(dim=1))
             ranks = torch.empty(len(order))
-            ranks[order] = torch.arange(len(order), dtype=torch.float32) / max(len(order), 1)
+            ranks[order] = torch.arange(len(order), dtype=ranks.dtype) / max(len(order), 1)
             self.register_buffer("ranks", ranks, persistent=False)
             self.register_buffer("weights", torch.ones(len(order)))
             self.set_progress(0.0)
