@@ -9,6 +9,7 @@ Tests that train for more than a few seconds carry `@pytest.mark.slow`: `pytest 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import io
 import logging
 import os
@@ -54,6 +55,14 @@ def compose_cfg(overrides: Sequence[str], hydra_config: bool = False) -> DictCon
     """The root config `train` with these command-line overrides (`hydra_config`: keep the `hydra` node)."""
     with hydra_context():
         return compose(config_name="train", overrides=list(overrides), return_hydra_config=hydra_config)
+
+
+def load_benchmark(name: str):
+    """A script of benchmarks/ (not a package) imported as a module, for tests of its helpers."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def spherical_cap(radius: float = 0.5, height: float = 0.25, subdivisions: int = 3,

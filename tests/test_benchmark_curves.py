@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import load_benchmark
 from scipy.integrate import quad
 
 from deepcurrents.eval.metrics import mass_to_area
@@ -16,20 +15,11 @@ from deepcurrents.experiments.runner import build
 from deepcurrents.geometry import biot_savart, load_boundary
 from deepcurrents.models.current_module import input_frame
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _benchmark():
-    spec = importlib.util.spec_from_file_location("time_to_quality", ROOT / "benchmarks" / "time_to_quality.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
 
 @pytest.mark.parametrize("name, radius, h",
                          [("catenoid", 0.5, 0.2), ("catenoid045", 0.45, 0.2), ("catenoid06", 0.6, 0.25)])
 def test_catenoid_area_is_the_surface_of_revolution_integral(tmp_path, name, radius, h):
-    ttq = _benchmark()
+    ttq = load_benchmark("time_to_quality")
     c = ttq.catenoid_neck(radius, h)
     assert abs(c * math.cosh(h / c) - radius) < 1e-12
     assert c > h / 1.19967864  # the stable (outer) catenoid, not the inner one
@@ -49,7 +39,7 @@ def test_catenoid_area_is_the_surface_of_revolution_integral(tmp_path, name, rad
 def test_enneper_area_is_the_integral_of_its_metric_and_the_curve_its_border(tmp_path, name, r):
     """Enneper's immersion X(u, v) = (u − u³/3 + uv², −v + v³/3 − u²v, u² − v²) has E = G = (1 + u² + v²)², F = 0:
     the area over the disk of radius r, by quadrature, and its border X(r cos t, r sin t), as the benchmark writes."""
-    ttq = _benchmark()
+    ttq = load_benchmark("time_to_quality")
     area, _ = quad(lambda rho: 2 * math.pi * rho * (1 + rho**2) ** 2, 0.0, r)
     path, exact = ttq.curves(tmp_path)[name]
     assert abs(exact - area) < 1e-12
@@ -75,7 +65,7 @@ def _plane_normal(about_x: float, about_y: float) -> np.ndarray:
     ("small_circle", 50, 25, (0.3, -0.2, 0.1), 0.5 * 300 * 0.25**2 * math.sin(2 * math.pi / 300)),  # regular 300-gon
 ])
 def test_planar_curves_lie_in_their_plane_and_bound_their_area(tmp_path, name, about_x, about_y, offset, area):
-    ttq = _benchmark()
+    ttq = load_benchmark("time_to_quality")
     path, exact = ttq.curves(tmp_path)[name]
     assert abs(exact - area) < 1e-12
     (loop,) = load_boundary(path, normalize=False).loops
@@ -87,7 +77,7 @@ def test_planar_curves_lie_in_their_plane_and_bound_their_area(tmp_path, name, a
 
 def test_star_is_close_to_its_smooth_curve():
     """The 300-vertex star's area is within O(1/M²) of the smooth r(t) = 0.45 + 0.15 cos 5t's ½∫r² dt."""
-    ttq = _benchmark()
+    ttq = load_benchmark("time_to_quality")
     smooth = math.pi * (0.45**2 + 0.15**2 / 2)
     assert 0 < smooth - ttq.polygon_area(ttq.tilted(ttq.star_points(), 30, 0)) < 1e-3
 
@@ -97,7 +87,7 @@ def test_score_gives_areas_in_the_curve_own_units_for_a_normalised_curve(tmp_pat
     scores must be areas in the star's own units, like metrics.json's. Untrained (zero output layer), ω = s·α of the
     scaled curve; the same uniform samples mapped back to the star's frame and α of the star itself, computed there,
     give ∫_{U'} |s·α| = scale² ∫_U |s·α_model| independently of how the benchmark converts."""
-    ttq = _benchmark()
+    ttq = load_benchmark("time_to_quality")
     path, exact = ttq.curves(tmp_path)["star"]
     cfg = ttq.compose_cfg(["experiment=minimal_curve", f"data.curve={path}", "preset=cpu"])
     _, module = build(cfg)

@@ -2,23 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import torch
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def load_train_step():
-    spec = importlib.util.spec_from_file_location("train_step", ROOT / "benchmarks" / "train_step.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from conftest import load_benchmark
 
 
 def test_products_share_and_flop_count_see_only_the_matrix_products():
-    bench = load_train_step()
+    bench = load_benchmark("train_step")
     a, b = torch.randn(256, 256), torch.randn(256, 256)
     x = torch.randn(1 << 18)
     assert bench.products_share(lambda: a @ b) > 0.9
