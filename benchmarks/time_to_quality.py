@@ -19,7 +19,8 @@ Curves with exact minimal areas (polygon areas for planar polygons, closed forms
 coaxial circles R = 0.5 at z = ±0.2, opposite orientations; the catenoid's πc(2h + c·sinh(2h/c)) = 1.2209, two
 loops and not planar), ``trefoil`` (no closed form: the issue's reference 0.737, the grid method's fine mesh), and
 the held-out curves, never used for tuning the fast recipe: ``enneper05`` (Enneper's surface cut at r = 0.5, non-planar,
-area π(r² + r⁴ + r⁶/3)) and ``tilted_circle04`` (R = 0.4, off-centre, normal (1, 2, 2)).
+area π(r² + r⁴ + r⁶/3)) and ``tilted_circle04`` (R = 0.4, off-centre, normal (1, 2, 2)); later ones are listed
+in ``curves`` (among them ``helicoid``: a helicoid piece's border, neither planar nor of revolution).
 
 Writes ``benchmarks/results/time_to_quality.csv`` (one row per copy), ``time_to_quality.png`` (mass_area /
 exact against seconds, log axes, one line per recipe, one panel per curve) and ``time_to_quality.json``, and
@@ -139,6 +140,29 @@ def planar_curve(tmp: Path, name: str, points: np.ndarray) -> tuple[str, float]:
     return str(path), polygon_area(points)
 
 
+def helicoid_curve(tmp: Path, a: float = 0.6, c: float = 0.3, turn: float = math.pi / 2,
+                   spacing: float = 0.01) -> tuple[str, float]:
+    """The border of the helicoid piece (u cos v, u sin v, c v), |u| ≤ a, 0 ≤ v ≤ ``turn`` (centred in z): two
+    segments and two helical arcs, non-planar, with four corners. For ``turn`` < π the piece is a minimal graph
+    over a convex domain (seen along the horizontal direction of v = turn/2 + π/2: the section at height c v is
+    |s| ≤ a cos(v − turn/2)), so it is the unique area minimiser, of area turn · (a√(a² + c²) + c² asinh(a/c)).
+    Vertices about ``spacing`` apart. → (curve file, exact area)."""
+    def helix(u: float, v0: float, v1: float) -> np.ndarray:
+        n = max(8, math.ceil(math.hypot(u * (v1 - v0), c * (v1 - v0)) / spacing))
+        v = np.linspace(v0, v1, n, endpoint=False)
+        return np.stack([u * np.cos(v), u * np.sin(v), c * v], -1)
+
+    def segment(u0: float, u1: float, v: float) -> np.ndarray:
+        u = np.linspace(u0, u1, max(8, math.ceil(abs(u1 - u0) / spacing)), endpoint=False)
+        return np.stack([u * math.cos(v), u * math.sin(v), np.full_like(u, c * v)], -1)
+
+    loop = np.concatenate([segment(-a, a, 0.0), helix(a, 0.0, turn), segment(a, -a, turn), helix(-a, turn, 0.0)])
+    loop[:, 2] -= c * turn / 2
+    path = tmp / "helicoid.txt"
+    np.savetxt(path, loop)
+    return str(path), turn * (a * math.hypot(a, c) + c * c * math.asinh(a / c))
+
+
 def star_points(n: int = 300) -> np.ndarray:
     """A five-lobed star r(t) = 0.45 + 0.15 cos 5t in the xy-plane (non-convex). → (n, 3)."""
     t = 2 * np.pi * np.arange(n) / n
@@ -189,6 +213,9 @@ def curves(tmp: Path) -> dict[str, tuple[str, float]]:
     out["small_circle"] = planar_curve(tmp, "small_circle", tilted(small, 50, 25, (0.3, -0.2, 0.1)))
     out["enneper07"] = enneper_curve(tmp, 0.7)
     out["catenoid06"] = catenoid_curve(tmp, 0.6, 0.25)
+    # added 2026-12-04 (evening), held out of every recipe choice: a helicoid piece (a 0.6, pitch c 0.3, a quarter
+    # turn; area 0.8363), a minimal surface neither planar nor of revolution, with four corners
+    out["helicoid"] = helicoid_curve(tmp)
     return out
 
 

@@ -105,3 +105,31 @@ def test_score_gives_areas_in_the_curve_own_units_for_a_normalised_curve(tmp_pat
     expected = mass_to_area(mean, 3, alpha_scale) * scale**3
     assert row["mass_area"] == pytest.approx(expected, rel=1e-3)
     assert row["ratio"] == pytest.approx(expected / exact, rel=1e-3)
+
+
+def test_helicoid_area_is_the_integral_of_its_metric_and_the_piece_a_graph_over_a_convex_domain(tmp_path):
+    """The helicoid X(u, v) = (u cos v, u sin v, c v) has |X_u × X_v| = √(u² + c²): the area of |u| ≤ a,
+    0 ≤ v ≤ θ by quadrature. Its unit normal (c sin v, −c cos v, u)/√(u² + c²) has a positive component along
+    e = (sin θ/2, −cos θ/2, 0) on the whole closed piece (θ < π), so the piece is a graph over the plane ⊥ e, whose
+    domain (|s| ≤ a cos(v − θ/2) at height c v) is convex: the unique minimiser. The written border runs along
+    the piece's four sides."""
+    ttq = load_benchmark("time_to_quality")
+    a, c, turn = 0.6, 0.3, math.pi / 2
+    path, exact = ttq.curves(tmp_path)["helicoid"]
+    area, _ = quad(lambda u: turn * math.sqrt(u * u + c * c), -a, a)
+    assert abs(exact - area) < 1e-12
+    u, v = np.meshgrid(np.linspace(-a, a, 101), np.linspace(0.0, turn, 101))
+    normal = np.stack([c * np.sin(v), -c * np.cos(v), u], -1) / np.sqrt(u**2 + c**2)[..., None]
+    e = np.array([math.sin(turn / 2), -math.cos(turn / 2), 0.0])
+    assert (normal @ e).min() > 0.1
+    (loop,) = load_boundary(path, normalize=False).loops
+    z = loop[:, 2] + c * turn / 2
+    vertex_v = z / c  # the height gives v on every side
+    assert vertex_v.min() > -1e-12 and vertex_v.max() < turn + 1e-12
+    radial = loop[:, 0] * np.cos(vertex_v) + loop[:, 1] * np.sin(vertex_v)  # u
+    across = -loop[:, 0] * np.sin(vertex_v) + loop[:, 1] * np.cos(vertex_v)
+    assert np.abs(across).max() < 1e-12 and np.abs(radial).max() < a + 1e-12  # on the helicoid, |u| ≤ a
+    on_side = (np.abs(np.abs(radial) - a) < 1e-12) | (np.abs(vertex_v) < 1e-12) | (np.abs(vertex_v - turn) < 1e-12)
+    assert on_side.all()  # each vertex on a helical side or on a segment
+    steps = np.linalg.norm(np.roll(loop, -1, 0) - loop, axis=1)
+    assert steps.max() < 0.011  # the sides are sampled densely (no chord across the piece)
