@@ -423,8 +423,8 @@ def fidelity(steps: int, curve: str = "trefoil") -> list[dict]:
         ref_loss.backward()
         ref_opt.step()
         ref_sched.step()
-        rows.append({"step": step, "ours": float(loss), "reference": float(ref_loss),
-                     "rel_diff": abs(float(loss) - float(ref_loss)) / float(ref_loss)})
+        ours, ref = float(loss.detach()), float(ref_loss.detach())
+        rows.append({"step": step, "ours": ours, "reference": ref, "rel_diff": abs(ours - ref) / ref})
     return rows
 
 
@@ -572,7 +572,8 @@ def main() -> None:
         known = curves(Path(tmp))
         if args.fidelity:
             rows = fidelity(args.fidelity)
-            for r in rows[:: max(1, len(rows) // 10)] + rows[-1:]:
+            shown = sorted({*range(0, len(rows), max(1, len(rows) // 10)), len(rows) - 1})  # every tenth and the last
+            for r in (rows[i] for i in shown):
                 print(f"  step {r['step']:4d}: ours {r['ours']:.6e}  reference {r['reference']:.6e}  "
                       f"rel. diff {r['rel_diff']:.1e}")
             print(f"largest relative difference over {len(rows)} steps: {max(r['rel_diff'] for r in rows):.2e}")
