@@ -112,12 +112,17 @@ def enneper_curve(tmp: Path, r: float) -> tuple[str, float]:
     return str(path), math.pi * (r**2 + r**4 + r**6 / 3)
 
 
-def catenoid_curve(tmp: Path, radius: float, h: float) -> tuple[str, float]:
+def catenoid_curve(tmp: Path, radius: float, h: float, about_x: float = 0.0, about_y: float = 0.0,
+                   offset=(0.0, 0.0, 0.0)) -> tuple[str, float]:
     """Two coaxial circles of ``radius`` at z = ±h, opposite orientations, written under ``tmp``, and the stable
     catenoid r = c·cosh(z/c) through them (c = catenoid_neck), area πc(2h + c·sinh(2h/c)); the caller checks it
-    is below the two disks' 2πR². → (curve file, exact area)."""
+    is below the two disks' 2πR². ``about_x``, ``about_y``, ``offset``: the pair turned and moved as ``tilted``
+    does (the area unchanged). → (curve file, exact area)."""
     top, bottom = circle(radius, center=(0, 0, h), n=200), circle(radius, center=(0, 0, -h), n=200)[::-1]
-    path = tmp / f"catenoid_{radius:g}_{h:g}.obj"
+    moved = (about_x, about_y, tuple(offset)) != (0.0, 0.0, (0.0, 0.0, 0.0))
+    if moved:
+        top, bottom = (tilted(lp, about_x, about_y, offset) for lp in (top, bottom))
+    path = tmp / (f"catenoid_{radius:g}_{h:g}" + ("_tilted" if moved else "") + ".obj")
     write_obj_loops(path, [top, bottom])
     c = catenoid_neck(radius, h)
     return str(path), math.pi * c * (2 * h + c * math.sinh(2 * h / c))
@@ -216,6 +221,8 @@ def curves(tmp: Path) -> dict[str, tuple[str, float]]:
     # added 2026-12-04 (evening), held out of every recipe choice: a helicoid piece (a 0.6, pitch c 0.3, a quarter
     # turn; area 0.8363), a minimal surface neither planar nor of revolution, with four corners
     out["helicoid"] = helicoid_curve(tmp)
+    # and the catenoid R 0.45 at z = ±0.2 with its axis turned 40° about x and 25° about y, off the centre
+    out["tilted_catenoid"] = catenoid_curve(tmp, 0.45, 0.2, 40, 25, (0.1, -0.05, 0.08))
     return out
 
 

@@ -133,3 +133,19 @@ def test_helicoid_area_is_the_integral_of_its_metric_and_the_piece_a_graph_over_
     assert on_side.all()  # each vertex on a helical side or on a segment
     steps = np.linalg.norm(np.roll(loop, -1, 0) - loop, axis=1)
     assert steps.max() < 0.011  # the sides are sampled densely (no chord across the piece)
+
+
+def test_tilted_catenoid_is_the_catenoid_turned_and_moved(tmp_path):
+    """A rigid motion keeps the minimal area: the tilted pair's exact area is the axis-aligned pair's, and its loops
+    are those loops turned by R_y(25°) R_x(40°) (written out by hand) and moved."""
+    ttq = load_benchmark("time_to_quality")
+    known = ttq.curves(tmp_path)
+    path, exact = known["tilted_catenoid"]
+    aligned_path, aligned_exact = known["catenoid045"]
+    assert exact == aligned_exact
+    a, b = math.radians(40), math.radians(25)
+    rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
+    for loop, aligned in zip(load_boundary(path, normalize=False).loops,
+                             load_boundary(aligned_path, normalize=False).loops, strict=True):
+        assert np.allclose(loop, aligned @ (ry @ rx).T + np.array([0.1, -0.05, 0.08]), atol=1e-9)
