@@ -165,6 +165,11 @@ TRAIN_CASES = [
     ("trainer devices zero", overrides("experiment=minimal_trefoil", "trainer.devices=0"), r"trainer\.devices=0"),
     ("trainer precision unknown", overrides("experiment=minimal_trefoil", "trainer.precision=bogus"),
      "trainer.precision=bogus"),
+    # mixed precision used to fail deep in torch (α's products under autocast), 64-true in the evaluation
+    ("trainer precision mixed", overrides("experiment=minimal_trefoil", "trainer.precision=bf16-mixed"),
+     r"trainer\.precision=bf16-mixed is not supported.*model\.net\.matmul_precision=medium"),
+    ("trainer precision double", overrides("experiment=minimal_trefoil", "trainer.precision=64-true"),
+     r"trainer\.precision=64-true is not supported"),
     ("family folder missing", overrides("experiment=latent_hands", "data.path=/nonexistent/hands"), "hands"),
     # a word where a number belongs: one sentence, not a TypeError from comparing a string (errors.number_at_least)
     # a mesh made here, not the hands (CI has no `make data`: the dataset check would speak first)
