@@ -33,7 +33,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from lightning.pytorch.accelerators import CPUAccelerator
-from lightning.pytorch.utilities.exceptions import SIGTERMException
+from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
@@ -228,6 +228,9 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
         with torch_threads(threads):
             trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
+    except MisconfigurationException as err:  # a trainer setting Lightning checks only when fitting starts
+        text = " ".join(str(err).split()).rstrip(".")
+        raise ConfigError(f"Lightning refused the trainer settings when training started: {text}.") from None
     except SIGTERMException:
         log.warning("Stopped by a signal (SIGTERM/SIGUSR1) at step %d; %s holds it. Continue with ckpt_path=auto "
                     "hydra.run.dir=%s.", trainer.global_step, last, out_dir)
