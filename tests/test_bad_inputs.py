@@ -283,6 +283,8 @@ APP_CASES = [
      lambda tmp, ck: {"ckpt_path": str(ck), "turntable": True, "frames": 0}, "frames=0"),
     ("render width negative", render_checkpoint, RenderConfig, "trefoil",
      lambda tmp, ck: {"ckpt_path": str(ck), "camera.width": -3}, "camera.width"),
+    ("render fov zero", render_checkpoint, RenderConfig, "trefoil",  # was a ZeroDivisionError in fit_camera
+     lambda tmp, ck: {"ckpt_path": str(ck), "camera.fov": 0.0}, r"camera\.fov=0\.0 must be an angle"),
     ("device unknown", render_checkpoint, RenderConfig, "trefoil",
      lambda tmp, ck: {"ckpt_path": str(ck), "device": "tpu7"}, "device='tpu7'"),
     ("evaluate target missing", evaluate_checkpoint, EvaluateConfig, "trefoil",

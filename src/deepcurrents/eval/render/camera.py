@@ -29,8 +29,7 @@ class Camera:
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ConfigError(f"camera.{key}={value!r} must be a positive integer (pixels).")
-        if not 0.0 < float(self.fov) < 180.0:
-            raise ConfigError(f"camera.fov={self.fov!r} must be an angle in degrees between 0 and 180.")
+        check_fov(self.fov)
         if not (math.isfinite(float(self.distance)) and float(self.distance) > 0):
             raise ConfigError(f"camera.distance={self.distance!r} must be a positive number.")
 
@@ -91,6 +90,13 @@ class Camera:
         return [self.orbit(self.azimuth + 360.0 * k / frames) for k in range(int(frames))]
 
 
+def check_fov(fov: float) -> float:
+    """``fov`` if it is a field of view in degrees strictly between 0 and 180, else one sentence."""
+    if not 0.0 < float(fov) < 180.0:
+        raise ConfigError(f"camera.fov={fov!r} must be an angle in degrees between 0 and 180.")
+    return float(fov)
+
+
 def fit_camera(points: np.ndarray, azimuth: float = 35.0, elevation: float = 25.0, fov: float = 35.0,
                width: int = 256, height: int = 256, margin: float = 1.08, tight: bool = True) -> Camera:
     """A camera at the given angles looking at the centre of the points' bounding box.
@@ -99,6 +105,7 @@ def fit_camera(points: np.ndarray, azimuth: float = 35.0, elevation: float = 25.
     ``tight``: as close as the points allow from these angles (stills); otherwise far enough to see their
     bounding sphere from any angle (turntables keep one distance for every frame).
     """
+    check_fov(fov)  # before the distance that divides by its sine
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     lo_box, hi_box = points.min(0), points.max(0)
     center = 0.5 * (lo_box + hi_box)
