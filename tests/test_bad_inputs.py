@@ -156,6 +156,8 @@ TRAIN_CASES = [
     ("dimension four", overrides("experiment=minimal_trefoil", "data.dim=4"), "data.dim"),
     ("checkpoint interval zero", overrides("experiment=minimal_trefoil",
                                            "callbacks.model_checkpoint.every_n_train_steps=0"), "every_n_train_steps"),
+    ("mesh resolution beyond memory", overrides("experiment=minimal_trefoil", "evaluation.mesh.resolution=100000"),
+     r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
     ("mesh method unknown", overrides("experiment=minimal_trefoil", "evaluation.mesh.method=marching"), "method"),
     ("level blend negative", overrides("experiment=latent_hands", "evaluation.mesh.level_blend=-0.1"),
      r"evaluation\.mesh\.level_blend"),
@@ -283,6 +285,8 @@ APP_CASES = [
      lambda tmp, ck: {"ckpt_path": str(ck), "turntable": True, "frames": 0}, "frames=0"),
     ("render width negative", render_checkpoint, RenderConfig, "trefoil",
      lambda tmp, ck: {"ckpt_path": str(ck), "camera.width": -3}, "camera.width"),
+    ("extract resolution beyond memory", extract_checkpoint, ExtractConfig, "trefoil",  # was numpy's MemoryError
+     lambda tmp, ck: {"ckpt_path": str(ck), "resolution": 100000}, r"resolution=100000 asks for a .* meshing grid"),
     ("render fov zero", render_checkpoint, RenderConfig, "trefoil",  # was a ZeroDivisionError in fit_camera
      lambda tmp, ck: {"ckpt_path": str(ck), "camera.fov": 0.0}, r"camera\.fov=0\.0 must be an angle"),
     ("device unknown", render_checkpoint, RenderConfig, "trefoil",

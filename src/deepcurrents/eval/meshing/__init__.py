@@ -19,12 +19,13 @@ from deepcurrents.eval.meshing.surface import (
     MeshingResult,
     extract_surface,
     flux_sign,
+    grid_shape,
     mesh_method,
     region_of_interest,
 )
 
 __all__ = [
     "CURVE_METHODS", "MESH_METHODS", "MESH_METHOD_CHOICES", "METHODS", "MeshMethod", "MeshingResult", "clip_by_field",
-    "current_phase", "extract_curve_2d", "extract_surface", "flux_sign", "level_on_boundary", "mesh_method",
-    "region_of_interest", "zip_to_loop",
+    "current_phase", "extract_curve_2d", "extract_surface", "flux_sign", "grid_shape", "level_on_boundary",
+    "mesh_method", "region_of_interest", "zip_to_loop",
 ]

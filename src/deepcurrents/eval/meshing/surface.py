@@ -21,6 +21,7 @@ faces. Here, whatever the method (``METHODS``: the phase by default, the paper's
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +29,8 @@ import torch
 import trimesh
 from skimage.measure import marching_cubes
 
-from deepcurrents.eval.device import device_of
+from deepcurrents.errors import ConfigError
+from deepcurrents.eval.device import available_memory, device_of
 from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
 from deepcurrents.eval.meshing.level_set import LevelSetMethod
@@ -110,12 +112,32 @@ def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.nd
     return faces[bordered[labels]], dropped
 
 
-def _grid(bounds: np.ndarray, resolution: int) -> tuple[np.ndarray, tuple[int, int, int], float]:
-    """Nodes (G0·G1·G2, 3) of a cubic grid from ``bounds[0]``, ``resolution`` cells along the longest side
-    of ``bounds`` (2, 3) → (nodes, shape, voxel size)."""
+# Peak memory of meshing per grid node: the nodes in float64 and float32, the sampled volume, marching cubes'
+# work arrays. Measured with `python -m deepcurrents.extract` on the quick start's trefoil: 113-135 bytes a node
+# at resolutions 256 and 384 (peak RSS less the process's own); the check uses a little less, so that it refuses
+# only grids that cannot fit.
+NODE_BYTES = 100
+
+
+def grid_shape(bounds: np.ndarray, resolution: int, key: str = "resolution") -> tuple[tuple[int, int, int], float]:
+    """The shape of the meshing grid over ``bounds`` (2, 3) with ``resolution`` cells along its longest side, and
+    its voxel size; one sentence naming ``key`` when its arrays (``NODE_BYTES`` a node) cannot fit in the memory
+    available here (a resolution of 2048 asks for billions of nodes)."""
     extent = bounds[1] - bounds[0]
     voxel = float(extent.max()) / resolution
     shape = tuple(int(s) for s in np.maximum(2, np.ceil(extent / voxel).astype(int) + 1))
+    need, free = NODE_BYTES * math.prod(shape), available_memory()
+    if free is not None and need > free:
+        raise ConfigError(f"{key}={resolution} asks for a {shape[0]}×{shape[1]}×{shape[2]} meshing grid, about "
+                          f"{need / 2**30:.1f} GiB of memory, but {free / 2**30:.1f} GiB are available here; "
+                          "lower it (128 is the default).")
+    return shape, voxel
+
+
+def _grid(bounds: np.ndarray, resolution: int) -> tuple[np.ndarray, tuple[int, int, int], float]:
+    """Nodes (G0·G1·G2, 3) of a cubic grid from ``bounds[0]``, ``resolution`` cells along the longest side
+    of ``bounds`` (2, 3) → (nodes, shape, voxel size)."""
+    shape, voxel = grid_shape(bounds, resolution)
     axes = [np.linspace(bounds[0, i], bounds[0, i] + voxel * (shape[i] - 1), shape[i]) for i in range(3)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), shape, voxel
 
