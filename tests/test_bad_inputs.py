@@ -158,6 +158,11 @@ TRAIN_CASES = [
                                            "callbacks.model_checkpoint.every_n_train_steps=0"), "every_n_train_steps"),
     ("mesh resolution beyond memory", overrides("experiment=minimal_trefoil", "evaluation.mesh.resolution=100000"),
      r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
+    # these failed only in the final evaluation, after the training (a ValueError from int(), or UCD of 0 samples)
+    ("ucd_samples a word", overrides("experiment=minimal_trefoil", "evaluation.ucd_samples=many"),
+     r"evaluation\.ucd_samples='many' must be a positive integer"),
+    ("evaluation seed a word", overrides("experiment=minimal_trefoil", "evaluation.seed=abc"),
+     r"evaluation\.seed='abc' must be an integer ≥ 0"),
     ("mesh method unknown", overrides("experiment=minimal_trefoil", "evaluation.mesh.method=marching"), "method"),
     ("level blend negative", overrides("experiment=latent_hands", "evaluation.mesh.level_blend=-0.1"),
      r"evaluation\.mesh\.level_blend"),
