@@ -314,6 +314,9 @@ APP_CASES = [
      lambda tmp, ck: {"ckpt_path": str(ck), "curve": str(tmp / "rim.txt")}, "rim.txt"),
     ("generate latent out of range", generate, GenerateConfig, "family",
      lambda tmp, ck: {"ckpt_path": str(ck), "curve": "circle", "latent": 9}, "latent"),
+    ("generate name with folders", generate, GenerateConfig, "family",  # wrote outside out_dir, or failed midway
+     lambda tmp, ck: {"ckpt_path": str(ck), "curve": "circle", "name": "../../elsewhere"},
+     r"name='\.\./\.\./elsewhere' must be a plain file name"),
 ]
 
 

@@ -73,6 +73,10 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
     """Meshes the family member (z_latent, Γ from the curve file). → the report written to <name>.json."""
     if not float(cfg.curve_scale) > 0:
         raise ConfigError(f"curve_scale={cfg.curve_scale} must be positive.")
+    if cfg.name is not None and (not str(cfg.name) or Path(str(cfg.name)).name != str(cfg.name)
+                                 or str(cfg.name) in (".", "..")):
+        # the files go into out_dir: a name with folders would write elsewhere, or fail in the middle
+        raise ConfigError(f"name='{cfg.name}' must be a plain file name without folders (the files go to out_dir).")
     module = load_for_app(cfg)
     k = module.check_shape_index(cfg.latent, "latent")
     source = f"curve='{cfg.curve}'"
