@@ -175,11 +175,11 @@ TRAIN_CASES = [
     # mixed precision used to fail deep in torch (α's products under autocast), 64-true in the evaluation
     ("trainer precision mixed", overrides("experiment=minimal_trefoil", "trainer.precision=bf16-mixed"),
      r"trainer\.precision=bf16-mixed is not supported.*model\.net\.matmul_precision=medium"),
+    ("trainer precision double", overrides("experiment=minimal_trefoil", "trainer.precision=64-true"),
+     r"trainer\.precision=64-true is not supported"),
     # a setting Lightning checks only when fitting starts (the samples are an endless stream)
     ("trainer limit a fraction", overrides("experiment=minimal_trefoil", "+trainer.limit_train_batches=0.5"),
      r"Lightning refused the trainer settings.*limit_train_batches"),
-    ("trainer precision double", overrides("experiment=minimal_trefoil", "trainer.precision=64-true"),
-     r"trainer\.precision=64-true is not supported"),
     ("family folder missing", overrides("experiment=latent_hands", "data.path=/nonexistent/hands"), "hands"),
     # a word where a number belongs: one sentence, not a TypeError from comparing a string (errors.number_at_least)
     # a mesh made here, not the hands (CI has no `make data`: the dataset check would speak first)
