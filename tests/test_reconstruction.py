@@ -246,3 +246,63 @@ def test_cli_bad_input_exits_with_one_sentence(tmp_path):
     cfg = compose_cfg(["experiment=recon_mesh", f"data.mesh={tmp_path / 'nope.ply'}", *TINY])
     with pytest.raises(UserInputError, match="does not exist"):
         train(cfg, out_dir=tmp_path)
+
+
+def _unit_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    n = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def test_a_target_with_faces_wound_backwards_or_repeated_reads_as_the_clean_mesh(tmp_path, caplog):
+    """Scanned and exported meshes often have some triangles wound against their neighbours and some written
+    twice: read_target_mesh turns the minority to agree and drops the repeats (each with a warning), so the
+    target's normals are the clean cap's, face by face, and so is its boundary. Before, the turned faces broke
+    the boundary loops (one sentence about a 2-vertex loop) and a repeat was refused as non-manifold."""
+    from deepcurrents.data.recon import read_target_mesh
+    from deepcurrents.data.targets import mesh_boundary_loops
+
+    cap = spherical_cap()
+    clean = tmp_path / "clean.ply"
+    cap.export(clean)
+    verts, faces = read_target_mesh(clean)
+    messy = faces.copy()
+    messy[::7] = messy[::7, ::-1]  # a seventh of the triangles turned over
+    messy = np.concatenate([messy, messy[:5]])  # and five written twice
+    path = tmp_path / "messy.ply"
+    trimesh.Trimesh(verts, messy, process=False).export(path)
+    with caplog.at_level(logging.WARNING):
+        v2, f2 = read_target_mesh(path)
+    assert "wound against their neighbours" in caplog.text and "dropped 5 repeated triangles" in caplog.text
+    assert len(f2) == len(faces)
+    def by_centre(v, f):  # face order may change: match faces by their centres
+        return {tuple(np.round(v[t].mean(0), 9)): n for t, n in zip(f, _unit_normals(v, f), strict=True)}
+
+    clean_normals, read_normals = by_centre(verts, faces), by_centre(v2, f2)
+    assert clean_normals.keys() == read_normals.keys()
+    assert all(np.allclose(clean_normals[c], read_normals[c]) for c in clean_normals)
+    (rim,), (rim2,) = mesh_boundary_loops(verts, faces), mesh_boundary_loops(v2, f2)
+    assert len(rim) == len(rim2) and np.allclose(np.cross(rim, np.roll(rim, -1, 0)).sum(0),
+                                                 np.cross(rim2, np.roll(rim2, -1, 0)).sum(0))
+
+
+def test_a_non_orientable_target_is_one_sentence(tmp_path):
+    """A Möbius band (a strip with a half twist) has no consistent winding: one sentence, not a wrong Γ."""
+    from deepcurrents.data.recon import TargetError, read_target_mesh
+
+    n, rows = 40, 3
+    t = 2 * np.pi * np.arange(n) / n
+    s = np.linspace(-0.2, 0.2, rows)
+    T, S = np.meshgrid(t, s, indexing="ij")
+    verts = np.stack([(0.5 + S * np.cos(T / 2)) * np.cos(T), (0.5 + S * np.cos(T / 2)) * np.sin(T),
+                      S * np.sin(T / 2)], -1).reshape(-1, 3)
+    idx = np.arange(n * rows).reshape(n, rows)
+    faces = []
+    for i in range(n):
+        a, b = idx[i], idx[(i + 1) % n] if i + 1 < n else idx[0][::-1]  # the half twist joins s to −s
+        for j in range(rows - 1):
+            faces += [[a[j], b[j], b[j + 1]], [a[j], b[j + 1], a[j + 1]]]
+    path = tmp_path / "moebius.ply"
+    trimesh.Trimesh(verts, np.array(faces), process=False).export(path)
+    with pytest.raises(TargetError, match=r"moebius\.ply' is not orientable") as info:
+        read_target_mesh(path)
+    assert "\n" not in str(info.value)
