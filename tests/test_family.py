@@ -748,3 +748,25 @@ def test_a_member_closed_on_a_scrap_of_its_shape_counts_as_vanished():
     assert summary["meshes_vanished"] == 2 and summary["meshes_closed_on_boundary"] == 3
     assert "meshes_vanished" not in summarise([{k: v for k, v in r.items() if k not in ("vanished", "area_fraction")}
                                                for r in records])  # generate's reports have no end shapes
+
+
+def test_a_family_mesh_with_faces_wound_backwards_keeps_its_vertices_and_its_one_loop(tmp_path):
+    """Family meshes are cleaned as reconstruction targets are (geometry.meshes.clean_faces): a cap with a seventh
+    of its triangles turned over read as 32 boundary loops before; now one, with the vertices in the file's order
+    (skinning correspondences rely on it) and the clean cap's winding."""
+    from conftest import spherical_cap
+
+    from deepcurrents.data.family import loop_indices, read_family_mesh
+
+    cap = spherical_cap()
+    verts, faces = np.asarray(cap.vertices), np.asarray(cap.faces)
+    messy = faces.copy()
+    messy[::7] = messy[::7, ::-1]
+    trimesh.Trimesh(verts, messy, process=False).export(tmp_path / "cap.ply")
+    v, f = read_family_mesh(tmp_path / "cap.ply")
+    assert np.allclose(v, verts)
+    assert np.array_equal(np.sort(f, 1), np.sort(faces, 1))  # the same triangles
+    normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    clean = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
+    assert np.allclose(normals, clean)  # wound as the clean cap
+    assert len(loop_indices(v, f)) == 1

@@ -24,7 +24,7 @@ from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_poin
 from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int, share
 from deepcurrents.geometry import Boundary, load_boundary, validate_loops, validate_points
 from deepcurrents.geometry.curves import box_normalisation
-from deepcurrents.geometry.meshes import read_mesh
+from deepcurrents.geometry.meshes import clean_faces, read_mesh
 from deepcurrents.geometry.polyline import project_to_segments
 
 log = logging.getLogger(__name__)
@@ -44,12 +44,7 @@ def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     mesh = read_mesh(path, "Mesh file", TargetError)
     verts = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
-    # drop degenerate (repeated-vertex) triangles and repeats of a triangle, then keep the largest component
-    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
-    _, first = np.unique(np.sort(faces, 1), axis=0, return_index=True)
-    if len(first) < len(faces):
-        log.warning("Mesh '%s': dropped %d repeated triangles.", path, len(faces) - len(first))
-        faces = faces[np.sort(first)]
+    faces = clean_faces(verts, faces, f"Mesh '{path}'", TargetError)  # then keep the largest component
     from deepcurrents.data.human_parts import cut_part, largest_component
 
     _check_manifold(path, faces)
@@ -59,31 +54,10 @@ def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                     path, len(keep), len(faces))
     used, faces = cut_part(verts, faces, keep)
     verts = verts[used]
-    faces = _consistent_winding(path, verts, faces)
     if not _check_manifold(path, faces):
         raise TargetError(f"Mesh '{path}' is closed (it has no boundary edges); DeepCurrents reconstructs "
                           "surfaces with boundary.")
     return verts, faces
-
-
-def _consistent_winding(path, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``faces`` (F, 3) wound alike, every interior edge run once each way (Γ and the normals follow the winding):
-    faces that disagree with their neighbours are turned to agree with the majority, with a warning; a
-    non-orientable mesh (a Möbius band) is one sentence."""
-    mesh = trimesh.Trimesh(verts, faces, process=False)
-    if mesh.is_winding_consistent:
-        return faces
-    trimesh.repair.fix_winding(mesh)
-    if not mesh.is_winding_consistent:
-        raise TargetError(f"Mesh '{path}' is not orientable (its faces cannot all be wound alike, like a Möbius "
-                          "band's); a current needs an oriented surface.")
-    fixed = np.asarray(mesh.faces, np.int64)
-    turned = int((fixed != faces).any(1).sum())
-    if turned > len(faces) / 2:  # keep the orientation most faces had
-        fixed, turned = np.ascontiguousarray(fixed[:, ::-1]), len(faces) - turned
-    log.warning("Mesh '%s': %d of %d triangles were wound against their neighbours; turned them to agree with the "
-                "rest.", path, turned, len(faces))
-    return fixed
 
 
 def _check_manifold(path, faces: np.ndarray) -> bool:
