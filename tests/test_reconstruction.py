@@ -306,3 +306,28 @@ def test_a_non_orientable_target_is_one_sentence(tmp_path):
     with pytest.raises(TargetError, match=r"moebius\.ply' is not orientable") as info:
         read_target_mesh(path)
     assert "\n" not in str(info.value)
+
+
+def test_a_point_cloud_with_inconsistently_oriented_normals_is_warned_about(tmp_path, caplog):
+    """The surface loss reads the sides of Σ from the normals: a cloud with a third of them flipped (as unoriented
+    PCA normals come) gets a warning when read; the same cloud with its true normals does not. The share of
+    neighbour pairs pointing opposite ways, counted by hand on a grid: all up → 0, alternating rows → a half."""
+    from deepcurrents.data.recon import opposed_neighbour_normals, read_oriented_points
+
+    cloud, _, _ = write_oriented_cloud(spherical_cap(), tmp_path)
+    data = np.loadtxt(cloud)
+    with caplog.at_level(logging.WARNING):
+        read_oriented_points(cloud)
+    assert "opposite ways" not in caplog.text
+    data[::3, 3:] *= -1
+    np.savetxt(tmp_path / "flipped.xyz", data)
+    with caplog.at_level(logging.WARNING):
+        read_oriented_points(tmp_path / "flipped.xyz")
+    assert "flipped.xyz': " in caplog.text and "opposite ways" in caplog.text
+    g = np.stack(np.meshgrid(np.arange(20.0), np.arange(20.0), indexing="ij"), -1).reshape(-1, 2)
+    plane = np.hstack([g, np.zeros((400, 1))])
+    up = np.tile([0.0, 0.0, 1.0], (400, 1))
+    assert opposed_neighbour_normals(plane, up) == 0.0
+    rows = up * np.where(plane[:, :1] % 2 == 0, 1.0, -1.0)  # every other row flipped
+    # an inner point's 4 nearest: 2 in its own row, 2 in the next rows (opposite); ties at the border move it a little
+    assert abs(opposed_neighbour_normals(plane, rows, k=4) - 0.5) < 0.03

@@ -106,7 +106,32 @@ def read_oriented_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     norm = np.linalg.norm(nrm, axis=1)
     if not (np.isfinite(data[:, :6]).all() and (norm > 1e-12).all()):
         raise TargetError(f"Point cloud '{path}' has NaN, infinite or zero-length normals.")
-    return pts, nrm / norm[:, None]
+    nrm = nrm / norm[:, None]
+    opposed = opposed_neighbour_normals(pts, nrm)
+    if opposed > OPPOSED_NORMALS_WARNING:
+        log.warning("Point cloud '%s': %.0f %% of neighbouring points have normals pointing opposite ways (a "
+                    "consistently oriented cloud has a few %%, at thin parts); the surface loss reads which side is "
+                    "which from them, so orient them consistently first.", path, 100 * opposed)
+    return pts, nrm
+
+
+# Share of 8-nearest-neighbour pairs whose normals point opposite ways above which a cloud's normals are taken to be
+# inconsistently oriented. Measured on the generated parts' surfaces, 1000-20000 samples with their true normals:
+# 0-4.3 % (hands, at the fingers, the most); with a tenth of the normals flipped 10-21 %, with 30 % flipped 40-44 %.
+OPPOSED_NORMALS_WARNING = 0.1
+
+
+def opposed_neighbour_normals(points: np.ndarray, normals: np.ndarray, k: int = 8, at_most: int = 20000) -> float:
+    """The share of (point, one of its ``k`` nearest neighbours) pairs whose unit normals have a negative dot
+    product, over a fixed subsample of ``at_most`` points. points, normals (P, 3) → a fraction in [0, 1]."""
+    from scipy.spatial import cKDTree
+
+    if len(points) > at_most:
+        keep = np.random.default_rng(0).choice(len(points), at_most, replace=False)
+        points, normals = points[keep], normals[keep]
+    k = min(k, len(points) - 1)
+    _, idx = cKDTree(points).query(points, k + 1)
+    return float(((normals[:, None, :] * normals[idx[:, 1:]]).sum(-1) < 0).mean())
 
 
 def normalisation(points: np.ndarray, mode: bool | str, half_extent: float = 0.5) -> tuple[float, np.ndarray]:
