@@ -279,6 +279,19 @@ def test_make_dataset_border_flag(tmp_path, capsys):
     assert err.value.code == 2 and "zigzag" in capsys.readouterr().err
 
 
+def test_make_dataset_refuses_no_bodies_and_an_unwritable_folder_before_generating(tmp_path, capsys):
+    """--num 0 (an IndexError deep in the generator before) and an --out that cannot be created (a
+    FileNotFoundError after minutes of generating) are one sentence each, before any body is made."""
+    with pytest.raises(SystemExit) as err:
+        main(["--num", "0"])
+    assert err.value.code == 2 and "--num=0 must be at least 1" in capsys.readouterr().err
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    with pytest.raises(SystemExit) as err:
+        main(["--num", "1", "--out", str(blocker / "data")])
+    assert str(err.value.code).startswith(f"error: --out='{blocker / 'data'}' cannot be created")
+
+
 def test_snapping_never_pinches_a_saddle():
     """A saddle field x·y + ε on a flat grid: the crossings next to the centre are within ``snap`` of it, but
     snapping the centre onto the level set would pinch the part there (two border arcs through one vertex)

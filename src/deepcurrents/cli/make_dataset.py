@@ -33,6 +33,13 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="smooth: cut along a level set of the skinning weights (FAUST: of the smoothed labels), "
                         "inside triangles; faces: along mesh edges, each face to its dominant bone (the former cut)")
     args = parser.parse_args(argv)
+    if args.source == "anny" and args.num < 1:
+        parser.error(f"--num={args.num} must be at least 1 (the number of bodies to generate).")
+    try:  # before minutes of generating: the folder must be writable
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise SystemExit(f"error: --out='{args.out}' cannot be created ({err.strerror or type(err).__name__}); "
+                         "choose a writable folder.") from None
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         if args.source == "anny":
