@@ -751,8 +751,8 @@ def test_a_member_closed_on_a_scrap_of_its_shape_counts_as_vanished():
 
 
 def test_a_family_mesh_with_faces_wound_backwards_keeps_its_vertices_and_its_one_loop(tmp_path):
-    """Family meshes are cleaned as reconstruction targets are (geometry.meshes.clean_faces): a cap with a seventh
-    of its triangles turned over read as 32 boundary loops before; now one, with the vertices in the file's order
+    """Family meshes are cleaned as reconstruction targets are (geometry.meshes): a cap with a seventh of its
+    triangles turned over read as 32 boundary loops before; now one, with the vertices in the file's order
     (skinning correspondences rely on it) and the clean cap's winding."""
     from conftest import spherical_cap
 

@@ -285,15 +285,12 @@ def test_a_target_with_faces_wound_backwards_or_repeated_reads_as_the_clean_mesh
                                                  np.cross(rim2, np.roll(rim2, -1, 0)).sum(0))
 
 
-def test_a_non_orientable_target_is_one_sentence(tmp_path):
-    """A Möbius band (a strip with a half twist) has no consistent winding: one sentence, not a wrong Γ."""
-    from deepcurrents.data.recon import TargetError, read_target_mesh
-
-    n, rows = 40, 3
+def _moebius(radius: float = 0.5, n: int = 40, rows: int = 3) -> trimesh.Trimesh:
+    """A Möbius band: a strip of width 0.4 about a circle of ``radius``, with a half twist."""
     t = 2 * np.pi * np.arange(n) / n
     s = np.linspace(-0.2, 0.2, rows)
     T, S = np.meshgrid(t, s, indexing="ij")
-    verts = np.stack([(0.5 + S * np.cos(T / 2)) * np.cos(T), (0.5 + S * np.cos(T / 2)) * np.sin(T),
+    verts = np.stack([(radius + S * np.cos(T / 2)) * np.cos(T), (radius + S * np.cos(T / 2)) * np.sin(T),
                       S * np.sin(T / 2)], -1).reshape(-1, 3)
     idx = np.arange(n * rows).reshape(n, rows)
     faces = []
@@ -301,11 +298,45 @@ def test_a_non_orientable_target_is_one_sentence(tmp_path):
         a, b = idx[i], idx[(i + 1) % n] if i + 1 < n else idx[0][::-1]  # the half twist joins s to −s
         for j in range(rows - 1):
             faces += [[a[j], b[j], b[j + 1]], [a[j], b[j + 1], a[j + 1]]]
+    return trimesh.Trimesh(verts, np.array(faces), process=False)
+
+
+def test_a_non_orientable_target_is_one_sentence_but_a_non_orientable_scrap_beside_it_is_dropped(tmp_path):
+    """A Möbius band (a strip with a half twist) has no consistent winding: one sentence, not a wrong Γ. A small
+    one beside a cap is a scrap: the cap, the largest component, is read as before (the winding is made
+    consistent on the part kept, not on what is thrown away)."""
+    from deepcurrents.data.recon import TargetError, read_target_mesh
+
     path = tmp_path / "moebius.ply"
-    trimesh.Trimesh(verts, np.array(faces), process=False).export(path)
+    _moebius().export(path)
     with pytest.raises(TargetError, match=r"moebius\.ply' is not orientable") as info:
         read_target_mesh(path)
     assert "\n" not in str(info.value)
+    cap = spherical_cap()
+    scrap = _moebius(0.1, n=8, rows=2)
+    scrap.apply_translation([0.8, 0.0, 0.0])
+    both = tmp_path / "cap_and_scrap.ply"
+    trimesh.Trimesh(np.vstack([cap.vertices, scrap.vertices]),
+                    np.vstack([cap.faces, scrap.faces + len(cap.vertices)]), process=False).export(both)
+    verts, faces = read_target_mesh(both)
+    assert len(faces) == len(cap.faces) and np.allclose(np.sort(verts, 0), np.sort(cap.vertices, 0))
+
+
+def test_winding_follows_the_majority_of_each_component():
+    """Two caps side by side, the first with a third of its triangles turned over (its first one among them, where
+    a breadth-first repair starts), the second clean: each comes back wound as its own majority, the clean caps'."""
+    from deepcurrents.geometry.meshes import consistent_winding
+
+    cap = spherical_cap()
+    n = len(cap.vertices)
+    verts = np.vstack([cap.vertices, cap.vertices + [1.2, 0.0, 0.0]])
+    clean = np.vstack([cap.faces, cap.faces + n])
+    messy = clean.copy()
+    first = np.arange(len(cap.faces))[::3]  # includes face 0
+    messy[first] = messy[first][:, ::-1]
+    fixed = consistent_winding(verts, messy, "two caps")
+    assert np.allclose(_unit_normals(verts, fixed), _unit_normals(verts, clean))
+    assert consistent_winding(verts, clean, "two caps") is clean  # consistent faces come back untouched
 
 
 def test_a_point_cloud_with_inconsistently_oriented_normals_is_warned_about(tmp_path, caplog):

@@ -45,7 +45,7 @@ from deepcurrents.data.targets import (
 from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int
 from deepcurrents.geometry.correspondence import best_cyclic_shift, match_loops, orientation_agrees
 from deepcurrents.geometry.harmonic import HarmonicSkinning
-from deepcurrents.geometry.meshes import clean_faces, read_mesh
+from deepcurrents.geometry.meshes import consistent_winding, drop_repeated_faces, read_mesh
 from deepcurrents.geometry.topology import border_edges
 
 log = logging.getLogger(__name__)
@@ -121,10 +121,11 @@ def split_held_out(files: Sequence[Path], max_meshes: int | None, held_out: int)
 
 def read_family_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float64 and faces (F, 3) int64 of a triangle mesh file, vertices in the file's order, the
-    faces cleaned as every target's (``geometry.meshes.clean_faces``: repeats dropped, winding made consistent)."""
+    faces cleaned as every target's (``geometry.meshes``: repeats dropped, winding made consistent)."""
     mesh = read_mesh(path, "Family mesh", FamilyError)
-    faces = clean_faces(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64),
-                        f"Family mesh '{path}'", FamilyError)
+    name = f"Family mesh '{path}'"
+    faces = consistent_winding(np.asarray(mesh.vertices, dtype=np.float64),
+                               drop_repeated_faces(np.asarray(mesh.faces, dtype=np.int64), name), name, FamilyError)
     mesh = trimesh.Trimesh(mesh.vertices, faces, process=False)
     mesh.remove_unreferenced_vertices()  # keeps the order of the others; stray vertices cannot be skinned
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)

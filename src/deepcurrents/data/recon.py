@@ -24,7 +24,7 @@ from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_poin
 from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int, share
 from deepcurrents.geometry import Boundary, load_boundary, validate_loops, validate_points
 from deepcurrents.geometry.curves import box_normalisation
-from deepcurrents.geometry.meshes import clean_faces, read_mesh
+from deepcurrents.geometry.meshes import consistent_winding, drop_repeated_faces, read_mesh
 from deepcurrents.geometry.polyline import project_to_segments
 
 log = logging.getLogger(__name__)
@@ -37,14 +37,15 @@ class TargetError(UserInputError):
 # ------------------------------------------------------------------------------------------ reading targets
 
 def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """A triangle mesh from a file trimesh reads, cleaned for reconstruction: largest connected component
-    (with a warning when there are several), no unreferenced vertices; TargetError with one sentence if
-    it is missing, unreadable, empty, closed, or has non-manifold edges. → (vertices (V, 3), faces (F, 3))."""
+    """A triangle mesh from a file trimesh reads, cleaned for reconstruction: repeated triangles dropped, largest
+    connected component (with a warning when there are several), its winding made consistent, no unreferenced
+    vertices; TargetError with one sentence if it is missing, unreadable, empty, closed, non-orientable or has
+    non-manifold edges. → (vertices (V, 3), faces (F, 3))."""
     path = Path(path)
     mesh = read_mesh(path, "Mesh file", TargetError)
     verts = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
-    faces = clean_faces(verts, faces, f"Mesh '{path}'", TargetError)  # then keep the largest component
+    faces = drop_repeated_faces(faces, f"Mesh '{path}'")
     from deepcurrents.data.human_parts import cut_part, largest_component
 
     _check_manifold(path, faces)
@@ -54,6 +55,7 @@ def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
                     path, len(keep), len(faces))
     used, faces = cut_part(verts, faces, keep)
     verts = verts[used]
+    faces = consistent_winding(verts, faces, f"Mesh '{path}'", TargetError)  # of the part kept only
     if not _check_manifold(path, faces):
         raise TargetError(f"Mesh '{path}' is closed (it has no boundary edges); DeepCurrents reconstructs "
                           "surfaces with boundary.")

@@ -38,28 +38,39 @@ def read_mesh(path: str | Path, what: str = "Mesh file", error: type[UserInputEr
     return mesh
 
 
-def clean_faces(vertices: np.ndarray, faces: np.ndarray, name: str,
-                error: type[UserInputError] = UserInputError) -> np.ndarray:
-    """``faces`` (F, 3) of a mesh file as a surface with boundary needs them, the vertices untouched: triangles
-    with a repeated vertex dropped; triangles written twice dropped and triangles wound against their neighbours
-    turned to agree with the majority (each with a warning naming ``name``: exported and scanned meshes have
-    both); one sentence if no consistent winding exists (a Möbius band: no orientation, so no Γ). → (F', 3)."""
+def drop_repeated_faces(faces: np.ndarray, name: str) -> np.ndarray:
+    """``faces`` (F, 3) without triangles that repeat a vertex and without second copies of a triangle (exported
+    and scanned meshes have them; a copy makes its edges look non-manifold), with a warning naming ``name`` for
+    the copies. The kept faces stay in order. → (F', 3)."""
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])]
     _, first = np.unique(np.sort(faces, 1), axis=0, return_index=True)
     if len(first) < len(faces):
         log.warning("%s: dropped %d repeated triangles.", name, len(faces) - len(first))
         faces = faces[np.sort(first)]
+    return faces
+
+
+def consistent_winding(vertices: np.ndarray, faces: np.ndarray, name: str,
+                       error: type[UserInputError] = UserInputError) -> np.ndarray:
+    """``faces`` (F, 3) wound alike in each connected component, every interior edge run once each way (Γ and the
+    normals follow the winding): the triangles wound against their neighbours are turned to agree with the
+    majority of their component, with a warning naming ``name``; one sentence for a component with no consistent
+    winding (a Möbius band: no orientation, so no Γ). Consistent faces come back unchanged. → (F, 3)."""
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     if mesh.is_winding_consistent:
         return faces
-    trimesh.repair.fix_winding(mesh)
+    trimesh.repair.fix_winding(mesh)  # each component made to agree with one of its faces
     if not mesh.is_winding_consistent:
         raise error(f"{name} is not orientable (its faces cannot all be wound alike, like a Möbius band's); a "
                     "current needs an oriented surface.")
-    fixed = np.asarray(mesh.faces, np.int64)
-    turned = int((fixed != faces).any(1).sum())
-    if turned > len(faces) / 2:  # keep the orientation most faces had
-        fixed, turned = np.ascontiguousarray(fixed[:, ::-1]), len(faces) - turned
+    fixed = np.array(mesh.faces, np.int64)
+    turned = (fixed != faces).any(1)
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(faces))
+    for part in np.unique(labels):  # keep the orientation most of each component's faces had
+        members = labels == part
+        if turned[members].sum() > members.sum() / 2:
+            fixed[members] = fixed[members][:, ::-1]
+            turned[members] = ~turned[members]
     log.warning("%s: %d of %d triangles were wound against their neighbours; turned them to agree with the rest.",
-                name, turned, len(faces))
+                name, int(turned.sum()), len(faces))
     return fixed
