@@ -44,6 +44,15 @@ def cap(height: float = 0.2, centre=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
     return spherical_cap(radius=0.3, height=height, subdivisions=2, centre=centre)
 
 
+def cap_family(tmp: Path, *more: str) -> list[str]:
+    """Overrides of a two-cap family made in ``tmp`` (CI has no ``make data``), then ``more``."""
+    (tmp / "parts").mkdir()
+    cap(0.2, (-0.4, 0, 0)).export(tmp / "parts" / "000_low.ply")
+    cap(0.25, (0.4, 0, 0)).export(tmp / "parts" / "001_high.ply")
+    return ["experiment=latent_hands", f"data.path={tmp / 'parts'}", "data.meshes_per_batch=2", "data.augment=false",
+            "data.num_workers=0", *more]
+
+
 def circle_rows(n: int = 24, r: float = 0.5) -> str:
     t = np.linspace(0, 2 * np.pi, n, endpoint=False)
     return "\n".join(f"{r * np.cos(a):.6f} {r * np.sin(a):.6f} 0.0" for a in t)
@@ -158,6 +167,10 @@ TRAIN_CASES = [
                                            "callbacks.model_checkpoint.every_n_train_steps=0"), "every_n_train_steps"),
     ("mesh resolution beyond memory", overrides("experiment=minimal_trefoil", "evaluation.mesh.resolution=100000"),
      r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
+    ("grid method mesh beyond memory", overrides("experiment=minimal_grid", "evaluation.mesh.resolution=100000"),
+     r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
+    ("family mesh beyond memory", lambda tmp: cap_family(tmp, "evaluation.mesh.resolution=100000"),
+     r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
     # these failed only in the final evaluation, after the training (a ValueError from int(), or UCD of 0 samples)
     ("ucd_samples a word", overrides("experiment=minimal_trefoil", "evaluation.ucd_samples=many"),
      r"evaluation\.ucd_samples='many' must be a positive integer"),
@@ -240,12 +253,8 @@ def trefoil(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def family(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("family")
-    (root / "parts").mkdir()
-    cap(0.2, (-0.4, 0, 0)).export(root / "parts" / "000_low.ply")
-    cap(0.25, (0.4, 0, 0)).export(root / "parts" / "001_high.ply")
-    train(compose_cfg(["experiment=latent_hands", f"data.path={root / 'parts'}", "data.meshes_per_batch=2",
-                       "data.augment=false", "model.latent_dim=8", "model.boundary_dim=8", "data.num_workers=0",
-                       "data.num_surface_samples=64", *TINY]), out_dir=root / "run")
+    overrides = cap_family(root, "model.latent_dim=8", "model.boundary_dim=8", "data.num_surface_samples=64")
+    train(compose_cfg([*overrides, *TINY]), out_dir=root / "run")
     return root / "run" / "checkpoints" / "last.ckpt"
 
 

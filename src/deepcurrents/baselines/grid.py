@@ -23,7 +23,7 @@ from deepcurrents.baselines.grid_solver import (
     grid_vertices,
 )
 from deepcurrents.errors import ConfigError, number_at_least, positive_int
-from deepcurrents.eval.meshing import extract_surface, mesh_method
+from deepcurrents.eval.meshing import extract_surface, mesh_method, mesh_region
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import biot_savart
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
@@ -144,6 +144,11 @@ class GridModule(DeepCurrentsModule):
         super().on_train_start()
 
     @torch.no_grad()
+    def final_mesh_regions(self) -> list[np.ndarray]:
+        """The region the final mesh covers (``meshing.mesh_region`` of the evaluation's mesh settings)."""
+        loops = [lp.detach().cpu().double().numpy() for lp in self.current.loops]
+        return [mesh_region(loops, dict(self.evaluation.get("mesh", {})))]
+
     def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
         """metrics.json, mesh.ply, mesh.png and field.npz (φ and |ω| on the grid) in ``out_dir``. → metrics."""
         out_dir = Path(out_dir)
@@ -177,7 +182,8 @@ class GridModule(DeepCurrentsModule):
         last = self.trainer.optimizers[0].last if opt_state else None
         if last is not None:
             metrics["primal_residual"], metrics["dual_residual"] = last.primal, last.dual
-        result = extract_surface(self.current, **mesh_method(self.evaluation.get("mesh", {}), self.mesh_method))
+        result = extract_surface(self.current, **mesh_method(self.evaluation.get("mesh", {}), self.mesh_method),
+                                 resolution_key=self.MESH_RESOLUTION_KEY)
         loops = [lp.cpu().double().numpy() for lp in self.current.loops]
         name = self.hparams.boundary.get("name", "")
         frame = input_frame(self.hparams.boundary)  # a normalised curve: outputs in the input's units

@@ -212,8 +212,7 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     if resume is not None:
         check_resumable(resume, module)
     check_free_space(out_dir, module)
-    if hasattr(module, "check_final_mesh"):
-        module.check_final_mesh()
+    module.check_final_mesh()
     last = out_dir / "checkpoints" / "last.ckpt"
     trainer: L.Trainer = build_trainer(
         cfg,

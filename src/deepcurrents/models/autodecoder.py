@@ -238,7 +238,12 @@ class AutodecoderModule(DeepCurrentsModule):
     def mesh_member(self, current: ConditionedCurrent, bounds: np.ndarray):
         """``extract_surface`` of a member with the evaluation's meshing settings in ``bounds``."""
         mesh_cfg = {k: v for k, v in dict(self.evaluation.get("mesh", {})).items() if k not in ("bounds", "padding")}
-        return extract_surface(current, bounds=bounds, **mesh_method(mesh_cfg, self.mesh_method))
+        return extract_surface(current, bounds=bounds, **mesh_method(mesh_cfg, self.mesh_method),
+                               resolution_key=self.MESH_RESOLUTION_KEY)
+
+    def final_mesh_regions(self) -> list[np.ndarray]:
+        """Each training shape's meshing region (``meshing_bounds``), as the final evaluation meshes them."""
+        return [self.meshing_bounds([i]) for i in range(len(self.train_bounds))]
 
     # ------------------------------------------------------------------------------ unseen shapes
     def fit_latent(self, vertices: np.ndarray, faces: np.ndarray, loops: Sequence[np.ndarray], steps: int = 300,

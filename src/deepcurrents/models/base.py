@@ -16,6 +16,7 @@ import torch
 import trimesh
 
 from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least, positive_int, share
+from deepcurrents.eval.meshing import grid_shape
 from deepcurrents.eval.metrics import mesh_summary
 from deepcurrents.eval.plots import MeshView, plot_mesh
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
@@ -114,6 +115,23 @@ class DeepCurrentsModule(L.LightningModule):
     def parameter_groups(self, lr: float) -> list[dict]:
         """Adam's parameter groups; one at ``lr`` unless a model kind trains some parameters at another rate."""
         return [{"params": list(self.parameters())}]
+
+    # the setting that sizes the final mesh's grid, named when that grid cannot fit in memory
+    MESH_RESOLUTION_KEY = "evaluation.mesh.resolution"
+
+    def final_mesh_regions(self) -> list[np.ndarray]:
+        """The regions (2, 3) the final evaluation will mesh at ``evaluation.mesh.resolution`` (none by default;
+        model kinds that mesh say which)."""
+        return []
+
+    def check_final_mesh(self) -> None:
+        """Before training: one sentence if a grid of the final mesh cannot fit in this machine's memory
+        (``meshing.grid_shape``), instead of a failure after the training it follows."""
+        resolution = dict(dict(getattr(self, "evaluation", None) or {}).get("mesh") or {}).get("resolution")
+        if resolution is None:
+            return
+        for bounds in self.final_mesh_regions():
+            grid_shape(np.asarray(bounds, dtype=np.float64), int(resolution), self.MESH_RESOLUTION_KEY)
 
     def check_finite(self, loss: torch.Tensor | float, hint: str = "try a lower model.optim.lr") -> None:
         value = float(loss.detach()) if isinstance(loss, torch.Tensor) else float(loss)

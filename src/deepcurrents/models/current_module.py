@@ -13,7 +13,7 @@ import trimesh
 from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
-from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, grid_shape, mesh_method, region_of_interest
+from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method, mesh_region
 from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_estimate_settings, mass_to_area
 from deepcurrents.eval.plots import plot_current_2d
 from deepcurrents.losses import current_loss
@@ -125,7 +125,8 @@ class CurrentModule(DeepCurrentsModule):
         out_dir.mkdir(parents=True, exist_ok=True)
         self.current.eval()
         # the mesh first (3D): with evaluation.mass_refine_mesh the mass estimate refines the cells it crosses
-        result = extract_surface(self.current, **self.mesh_options()) if self.dim == 3 else None
+        result = (extract_surface(self.current, **self.mesh_options(), resolution_key=self.MESH_RESOLUTION_KEY)
+                  if self.dim == 3 else None)
         used: dict[str, int] = {}
         mass, stderr = mass_estimate(self.current, seed=int(self.evaluation.get("seed", 12345)), info=used,
                                      **mass_estimate_settings(self.evaluation, result.mesh if result else None))
@@ -176,17 +177,11 @@ class CurrentModule(DeepCurrentsModule):
         """Keyword arguments of ``extract_surface`` for the final mesh (reconstruction adds ``bounds``)."""
         return mesh_method(self.evaluation.get("mesh", {}), self.mesh_method)
 
-    def check_final_mesh(self) -> None:
-        """Before training: one sentence if the final mesh's grid cannot fit in this machine's memory
-        (``meshing.grid_shape``), instead of a failure after the training it follows."""
-        options = self.mesh_options()
-        if self.dim != 3 or options.get("resolution") is None:
-            return
-        bounds = options.get("bounds")
-        if bounds is None:
-            loops = [lp.detach().cpu().double().numpy() for lp in self.current.loops]
-            bounds = region_of_interest(loops, **({"padding": options["padding"]} if "padding" in options else {}))
-        grid_shape(np.asarray(bounds, dtype=np.float64), int(options["resolution"]), "evaluation.mesh.resolution")
+    def final_mesh_regions(self) -> list[np.ndarray]:
+        """The region the final mesh covers (3D; ``meshing.mesh_region`` of ``mesh_options``)."""
+        if self.dim != 3:
+            return []
+        return [mesh_region([lp.detach().cpu().double().numpy() for lp in self.current.loops], self.mesh_options())]
 
     def _plot_2d(self, curves, path: Path) -> None:
         dev = next(self.parameters()).device

@@ -21,11 +21,12 @@ from deepcurrents.eval.meshing.surface import (
     flux_sign,
     grid_shape,
     mesh_method,
+    mesh_region,
     region_of_interest,
 )
 
 __all__ = [
     "CURVE_METHODS", "MESH_METHODS", "MESH_METHOD_CHOICES", "METHODS", "MeshMethod", "MeshingResult", "clip_by_field",
     "current_phase", "extract_curve_2d", "extract_surface", "flux_sign", "grid_shape", "level_on_boundary",
-    "mesh_method", "region_of_interest", "zip_to_loop",
+    "mesh_method", "mesh_region", "region_of_interest", "zip_to_loop",
 ]

@@ -76,6 +76,14 @@ def region_of_interest(loops: list[np.ndarray], padding: float = 0.15, domain: f
     return np.stack([np.maximum(lo - pad, -domain), np.minimum(hi + pad, domain)])
 
 
+def mesh_region(loops: list[np.ndarray], options: dict) -> np.ndarray:
+    """The region ``extract_surface(current, **options)`` meshes for a current with Γ = ``loops`` (M_i, 3): the
+    options' ``bounds``, else Γ's box grown by their ``padding`` (``region_of_interest``). → (2, 3) float64."""
+    if options.get("bounds") is not None:
+        return np.asarray(options["bounds"], dtype=np.float64)
+    return region_of_interest(loops, **({"padding": options["padding"]} if options.get("padding") is not None else {}))
+
+
 def flux_sign(current, vertices: np.ndarray, faces: np.ndarray, chunk_size: int = 1 << 16) -> float:
     """The sign of the current's flux through a triangle mesh, Σ_faces (n · ω(centre)) · area: +1 when the
     faces' normals point along the current, −1 when against it (0 for no flux).
@@ -130,14 +138,15 @@ def grid_shape(bounds: np.ndarray, resolution: int, key: str = "resolution") -> 
     if free is not None and need > free:
         raise ConfigError(f"{key}={resolution} asks for a {shape[0]}×{shape[1]}×{shape[2]} meshing grid, about "
                           f"{need / 2**30:.1f} GiB of memory, but {free / 2**30:.1f} GiB are available here; "
-                          "lower it (128 is the default).")
+                          "lower it.")
     return shape, voxel
 
 
-def _grid(bounds: np.ndarray, resolution: int) -> tuple[np.ndarray, tuple[int, int, int], float]:
+def _grid(bounds: np.ndarray, resolution: int, key: str = "resolution"
+          ) -> tuple[np.ndarray, tuple[int, int, int], float]:
     """Nodes (G0·G1·G2, 3) of a cubic grid from ``bounds[0]``, ``resolution`` cells along the longest side
-    of ``bounds`` (2, 3) → (nodes, shape, voxel size)."""
-    shape, voxel = grid_shape(bounds, resolution)
+    of ``bounds`` (2, 3) → (nodes, shape, voxel size); ``key`` names the resolution in a refusal."""
+    shape, voxel = grid_shape(bounds, resolution, key)
     axes = [np.linspace(bounds[0, i], bounds[0, i] + voxel * (shape[i] - 1), shape[i]) for i in range(3)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), shape, voxel
 
@@ -159,6 +168,7 @@ def extract_surface(
     strip_rows: int | None = None,
     level_blend: float = 0.0,
     chunk_size: int = 1 << 16,
+    resolution_key: str = "resolution",
 ) -> MeshingResult:
     """The surface of a 3D current as a triangle mesh whose border lies on Γ (see the module docstring).
 
@@ -180,16 +190,16 @@ def extract_surface(
             τ long) for the phase, so minimal-surface meshes are as they were; about τ/voxel rows (triangles
             about a voxel tall, no slivers) for every other method, the level set of reconstructions and
             families among them.
+        resolution_key: the setting that gave ``resolution``, named if its grid cannot fit in memory
+            (``evaluation.mesh.resolution`` for a run's final mesh; an app's ``resolution``).
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
     options = {"level_blend": level_blend} if method == "level_set" else {}
     finder = METHODS[method](current, chunk_size, **options)
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
-    if bounds is None:
-        bounds = region_of_interest(loops, padding)
-    bounds = np.asarray(bounds, dtype=np.float64)
-    nodes, shape, voxel = _grid(bounds, resolution)
+    bounds = mesh_region(loops, {"bounds": bounds, "padding": padding})
+    nodes, shape, voxel = _grid(bounds, resolution, resolution_key)
     dev = device_of(current)
     closed_area = 0.0
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
