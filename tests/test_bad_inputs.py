@@ -301,6 +301,8 @@ APP_CASES = [
      lambda tmp, ck: {"ckpt_path": str(ck), "camera.width": -3}, "camera.width"),
     ("extract resolution beyond memory", extract_checkpoint, ExtractConfig, "trefoil",  # was numpy's MemoryError
      lambda tmp, ck: {"ckpt_path": str(ck), "resolution": 100000}, r"resolution=100000 asks for a .* meshing grid"),
+    ("render name with folders", render_checkpoint, RenderConfig, "trefoil",  # wrote the picture outside out_dir
+     lambda tmp, ck: {"ckpt_path": str(ck), "name": "../escaped"}, r"name='\.\./escaped' must be a plain file name"),
     ("render fov zero", render_checkpoint, RenderConfig, "trefoil",  # was a ZeroDivisionError in fit_camera
      lambda tmp, ck: {"ckpt_path": str(ck), "camera.fov": 0.0}, r"camera\.fov=0\.0 must be an angle"),
     ("device unknown", render_checkpoint, RenderConfig, "trefoil",

@@ -17,7 +17,7 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
-from deepcurrents.errors import NonFiniteLossError, UserInputError
+from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
 from deepcurrents.eval.meshing import mesh_method
 
 log = logging.getLogger("deepcurrents")
@@ -48,6 +48,17 @@ def output_dir(ckpt_path: str, out_dir: str | None) -> Path:
         raise UserInputError(f"{where} cannot be created ({err.strerror or type(err).__name__}); choose a "
                              "writable out_dir=….") from None
     return path
+
+
+def plain_file_name(value: Any, key: str = "name") -> str | None:
+    """``value`` as an output file stem (None or "" → None: the app's default), or one sentence if it holds
+    folders: the apps write into ``out_dir``, and a name with folders would write elsewhere or fail halfway."""
+    if value is None or str(value) == "":
+        return None
+    name = str(value)
+    if Path(name).name != name or name in (".", ".."):
+        raise ConfigError(f"{key}='{name}' must be a plain file name without folders (the files go to out_dir).")
+    return name
 
 
 def exit_on_user_error(body: Callable[..., Any], *args: Any) -> Any:

@@ -24,7 +24,7 @@ import hydra
 import numpy as np
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import register_app, run_app
+from deepcurrents.cli.common import plain_file_name, register_app, run_app
 from deepcurrents.cli.families import app_out_dir, load_for_app, mesh_and_measure, write_outputs
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry.correspondence import match_loops, orientation_agrees
@@ -73,16 +73,13 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
     """Meshes the family member (z_latent, Γ from the curve file). → the report written to <name>.json."""
     if not float(cfg.curve_scale) > 0:
         raise ConfigError(f"curve_scale={cfg.curve_scale} must be positive.")
-    if cfg.name is not None and (not str(cfg.name) or Path(str(cfg.name)).name != str(cfg.name)
-                                 or str(cfg.name) in (".", "..")):
-        # the files go into out_dir: a name with folders would write elsewhere, or fail in the middle
-        raise ConfigError(f"name='{cfg.name}' must be a plain file name without folders (the files go to out_dir).")
+    given = plain_file_name(cfg.name)
     module = load_for_app(cfg)
     k = module.check_shape_index(cfg.latent, "latent")
     source = f"curve='{cfg.curve}'"
     loops = prepare_loops(load_boundary(str(cfg.curve), scale=float(cfg.curve_scale)).loops, module.shape_loops(k),
                           source)
-    name = cfg.name or f"{Path(str(cfg.curve)).stem}_latent{k}"
+    name = given or f"{Path(str(cfg.curve)).stem}_latent{k}"
     out_dir = app_out_dir(cfg, "generated")
     rec = mesh_and_measure(module, module.latent(k), loops, [k], out_dir, name)
     rec["title"] = f"boundary error {rec['boundary_error']:.2g}" if rec["boundary_error"] is not None \

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -35,11 +36,13 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.source == "anny" and args.num < 1:
         parser.error(f"--num={args.num} must be at least 1 (the number of bodies to generate).")
-    try:  # before minutes of generating: the folder must be writable
+    try:  # before minutes of generating: the folder must exist and take files
         Path(args.out).mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise SystemExit(f"error: --out='{args.out}' cannot be created ({err.strerror or type(err).__name__}); "
                          "choose a writable folder.") from None
+    if not os.access(args.out, os.W_OK | os.X_OK):
+        raise SystemExit(f"error: --out='{args.out}' is not writable; choose a writable folder.")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         if args.source == "anny":

@@ -21,7 +21,7 @@ import hydra
 import numpy as np
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app
+from deepcurrents.cli.common import mesh_settings, output_dir, plain_file_name, register_app, run_app
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.render import (
@@ -130,6 +130,7 @@ def metric_of(module) -> Callable | None:
 def render_checkpoint(cfg: DictConfig) -> list:
     """The app's body. → the files written."""
     device = resolve_device(cfg.device)
+    name = plain_file_name(cfg.name) or "render"
     positive_int("frames", cfg.frames)
     if not cfg.fps > 0:
         raise ConfigError(f"fps={cfg.fps} must be positive.")
@@ -142,11 +143,11 @@ def render_checkpoint(cfg: DictConfig) -> list:
         if cfg.turntable or cfg.mesh:
             raise ConfigError("turntable=true and mesh=true need a 3D current; this checkpoint's is 2D.")
         metric_fn = metric_of(module)
-        render_current_2d(current, out / f"{cfg.name}.png")
-        written.append(out / f"{cfg.name}.png")
+        render_current_2d(current, out / f"{name}.png")
+        written.append(out / f"{name}.png")
         if callable(metric_fn):
-            render_current_2d(current, out / f"{cfg.name}_metric.png", metric_fn=metric_fn, show_alpha=False)
-            written.append(out / f"{cfg.name}_metric.png")
+            render_current_2d(current, out / f"{name}_metric.png", metric_fn=metric_fn, show_alpha=False)
+            written.append(out / f"{name}_metric.png")
         return written
 
     settings = DensitySettings(gain=float(cfg.gain), floor=float(cfg.floor), shading=float(cfg.shading))
@@ -160,23 +161,23 @@ def render_checkpoint(cfg: DictConfig) -> list:
         for k, cam in enumerate(camera.turntable(cfg.frames)):
             frames.append(render_current(current, cam, **kwargs).over(cfg.background))
             log.info("frame %d/%d", k + 1, cfg.frames)
-        written.append(save_gif(frames, out / f"{cfg.name}_turntable.gif", cfg.fps))
-        mp4 = save_mp4(frames, out / f"{cfg.name}_turntable.mp4", cfg.fps)
+        written.append(save_gif(frames, out / f"{name}_turntable.gif", cfg.fps))
+        mp4 = save_mp4(frames, out / f"{name}_turntable.mp4", cfg.fps)
         if mp4 is not None:
             written.append(mp4)
     else:
         image = render_current(current, camera, **kwargs)
         pixels = image.rgba() if cfg.transparent else image.over(cfg.background)
-        written.append(save_image(pixels, out / f"{cfg.name}.png"))
+        written.append(save_image(pixels, out / f"{name}.png"))
     log.info("volume render: %.1f s", time.perf_counter() - start)
     if cfg.mesh:
         result = extract_surface(current, **mesh_settings(module, cfg.shape, resolution=cfg.resolution))
         title = f"area {result.mesh.area:.4f}"
         if cfg.turntable:
             frames = [render_mesh(result.mesh, loops, cam) for cam in camera.turntable(cfg.frames)]
-            written.append(save_gif(frames, out / f"{cfg.name}_mesh_turntable.gif", cfg.fps))
+            written.append(save_gif(frames, out / f"{name}_mesh_turntable.gif", cfg.fps))
         else:
-            path = out / f"{cfg.name}_mesh.png"
+            path = out / f"{name}_mesh.png"
             render_mesh(result.mesh, loops, camera, path, title=title)
             written.append(path)
     return written

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import torch
 
 
@@ -14,13 +17,28 @@ def device_of(module) -> torch.device:
 
 
 def available_memory() -> int | None:
-    """Bytes of memory this machine can give a new allocation without swapping (Linux's MemAvailable: free memory
-    and reclaimable caches); None where it cannot be read (then no check relies on it)."""
+    """Bytes of memory a new allocation can have without swapping: Linux's MemAvailable (free memory and
+    reclaimable caches), capped by the process's cgroup limit (a container's ``--memory``, cgroup v2) when it has
+    one; elsewhere the machine's physical memory (sysconf); None where neither can be read (no check relies on it)."""
+    free = None
     try:
         with open("/proc/meminfo") as meminfo:
             for line in meminfo:
                 if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
+                    free = int(line.split()[1]) * 1024
+                    break
     except (OSError, ValueError, IndexError):
         pass
-    return None
+    if free is None:
+        try:
+            free = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        except (AttributeError, ValueError, OSError):
+            return None
+    try:  # cgroup v2: the limit and what the group already uses
+        root = Path("/sys/fs/cgroup")
+        limit = (root / "memory.max").read_text().strip()
+        if limit != "max":
+            free = min(free, int(limit) - int((root / "memory.current").read_text().strip()))
+    except (OSError, ValueError):
+        pass
+    return free

@@ -77,12 +77,16 @@ def validate_config(cfg: DictConfig) -> None:
                           "(seconds or DD:HH:MM:SS).")
     precision = OmegaConf.select(cfg, "trainer.precision")
     if precision is not None and str(precision) not in ("32-true", "32"):
-        why = ("the final evaluation, meshing and rendering build float32 points and grids"
-               if str(precision) in ("64-true", "64") else
-               # under autocast α's products would meet float32 operands (a dtype error deep in torch)
-               "its training pass and Biot–Savart run in the parameters' precision whatever autocast asks (the "
-               "mass loss is sensitive to rounding), so mixed or half precision cannot speed it up; for faster "
-               "matrix products use model.net.matmul_precision=medium (bf16 or TF32 internals in float32 products)")
+        value = str(precision)
+        if value in ("64-true", "64"):
+            why = "the final evaluation, meshing and rendering build float32 points and grids"
+        elif "16" in value:  # 16-mixed, bf16-mixed, 16-true, bf16-true, 16, bf16
+            # under autocast α's products would meet float32 operands (a dtype error deep in torch)
+            why = ("its training pass and Biot–Savart run in the parameters' precision whatever autocast asks (the "
+                   "mass loss is sensitive to rounding), so half precision cannot speed it up; for faster matrix "
+                   "products use model.net.matmul_precision=medium (bf16 or TF32 internals in float32 products)")
+        else:
+            why = "32-true is the only precision it runs in"
         raise ConfigError(f"trainer.precision={precision} is not supported: DeepCurrents trains in float32 "
                           f"(32-true), and {why}.")
     threads = OmegaConf.select(cfg, "torch_threads")

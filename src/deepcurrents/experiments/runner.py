@@ -229,9 +229,9 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
         with torch_threads(threads):
             trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
-    except MisconfigurationException as err:  # a trainer setting Lightning checks only when fitting starts
+    except MisconfigurationException as err:  # a trainer setting Lightning checks only once fitting runs
         text = " ".join(str(err).split()).rstrip(".")
-        raise ConfigError(f"Lightning refused the trainer settings when training started: {text}.") from None
+        raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
     except SIGTERMException:
         log.warning("Stopped by a signal (SIGTERM/SIGUSR1) at step %d; %s holds it. Continue with ckpt_path=auto "
                     "hydra.run.dir=%s.", trainer.global_step, last, out_dir)
