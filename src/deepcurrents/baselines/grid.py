@@ -143,12 +143,12 @@ class GridModule(DeepCurrentsModule):
         self.problem()  # α before the clock starts: its time is reported as setup_seconds
         super().on_train_start()
 
-    @torch.no_grad()
     def final_mesh_regions(self) -> list[np.ndarray]:
         """The region the final mesh covers (``meshing.mesh_region`` of the evaluation's mesh settings)."""
         loops = [lp.detach().cpu().double().numpy() for lp in self.current.loops]
         return [mesh_region(loops, dict(self.evaluation.get("mesh", {})))]
 
+    @torch.no_grad()
     def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
         """metrics.json, mesh.ply, mesh.png and field.npz (φ and |ω| on the grid) in ``out_dir``. → metrics."""
         out_dir = Path(out_dir)
