@@ -15,6 +15,7 @@ import trimesh
 from conftest import QUIET_CPU, compose_cfg, hydra_context, spherical_cap, write_oriented_cloud, written_curve_length
 
 from deepcurrents.data.recon import ReconstructionDataModule, curve_metric_2d, semicircle
+from deepcurrents.data.targets import face_normals
 from deepcurrents.errors import UserInputError
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface
 from deepcurrents.experiments.runner import run_suite, train
@@ -248,11 +249,6 @@ def test_cli_bad_input_exits_with_one_sentence(tmp_path):
         train(cfg, out_dir=tmp_path)
 
 
-def _unit_normals(verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    n = np.cross(verts[faces[:, 1]] - verts[faces[:, 0]], verts[faces[:, 2]] - verts[faces[:, 0]])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
 def test_a_target_with_faces_wound_backwards_or_repeated_reads_as_the_clean_mesh(tmp_path, caplog):
     """Scanned and exported meshes often have some triangles wound against their neighbours and some written
     twice: read_target_mesh turns the minority to agree and drops the repeats (each with a warning), so the
@@ -275,7 +271,7 @@ def test_a_target_with_faces_wound_backwards_or_repeated_reads_as_the_clean_mesh
     assert "wound against their neighbours" in caplog.text and "dropped 5 repeated triangles" in caplog.text
     assert len(f2) == len(faces)
     def by_centre(v, f):  # face order may change: match faces by their centres
-        return {tuple(np.round(v[t].mean(0), 9)): n for t, n in zip(f, _unit_normals(v, f), strict=True)}
+        return {tuple(np.round(v[t].mean(0), 9)): n for t, n in zip(f, face_normals(v, f), strict=True)}
 
     clean_normals, read_normals = by_centre(verts, faces), by_centre(v2, f2)
     assert clean_normals.keys() == read_normals.keys()
@@ -335,7 +331,7 @@ def test_winding_follows_the_majority_of_each_component():
     first = np.arange(len(cap.faces))[::3]  # includes face 0
     messy[first] = messy[first][:, ::-1]
     fixed = consistent_winding(verts, messy, "two caps")
-    assert np.allclose(_unit_normals(verts, fixed), _unit_normals(verts, clean))
+    assert np.allclose(face_normals(verts, fixed), face_normals(verts, clean))
     assert consistent_winding(verts, clean, "two caps") is clean  # consistent faces come back untouched
 
 
