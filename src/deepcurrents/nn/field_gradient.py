@@ -20,7 +20,9 @@ arrays and over the features. Their Jacobian is closed form: φ = [sin 2πBx, co
 h = g_sin ⊙ cos − g_cos ⊙ sin (N, K), and its adjoint ḡ_0 = [cos ⊙ v, −sin ⊙ v] with v = 2π ω̄ Bᵀ (N, K), so the
 three-column products run on (N, K) arrays (v by d broadcast passes: MKL's (N, 3) @ (3, K) is bound by writing its
 output) and ḡ_0 is written once, by one broadcast pass over φ as [sin ⊙ v, cos ⊙ v]: the two products that read it
-take the swap of its halves and the sign on W_1's side (``_swap_halves``).
+take the swap of its halves and the sign on W_1's side (``_swap_halves``). The first layer's wide arrays (φ, g_0,
+ḡ_0) and h, v are kept transposed, (2K, N) and (K, N), so that every elementwise pass over them reads and writes
+contiguous blocks; the products read them as transposed views at the same rate.
 
 Why not forward-mode tangents (value and 3 tangents stacked as one (4N, width) GEMM per layer): they cost 4
 GEMMs of each layer forward and 8 backward, 12 against these 5-6, and the wide first layer dominates
@@ -69,7 +71,8 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     """f = mlp(encoding(x)) and ∇_x f, differentiable in the MLP's parameters (not in x).
 
     x: (N, d) → (f (N,), ∇f (N, d)). The same numbers as autograd (tests/test_nn.py: float64, relative
-    error ≤ 1e-10 on f, ∇f and every parameter gradient); f is bit-identical to ``mlp(encoding(x))``.
+    error ≤ 1e-10 on f, ∇f and every parameter gradient); f is ``mlp(encoding(x))`` up to rounding (the same
+    operations, but the features are kept transposed, so the products may sum in another order).
 
     ``first_layer`` = (W_φ (width, F), c (S, width)): a decoder conditioned on a code per shape, whose first
     layer's code columns and bias are folded into c = W_code·code + b (computed by the caller, so its gradient
@@ -186,8 +189,9 @@ def _activation(z: torch.Tensor, spec: tuple[str, float, float]) -> torch.Tensor
 
 def _swap_halves(w: torch.Tensor, k: int, inverse: bool = False) -> torch.Tensor:
     """The columns [w_sin, w_cos, w_rest] of a (W, 2K + G) array as [−w_cos, w_sin, w_rest], so that
-    [sin ⊙ v, cos ⊙ v] @ swap(w)ᵀ = [cos ⊙ v, −sin ⊙ v] @ wᵀ; ``inverse``: [w_cos, −w_sin, w_rest]. A new array."""
-    out = torch.empty_like(w)
+    [sin ⊙ v, cos ⊙ v] @ swap(w)ᵀ = [cos ⊙ v, −sin ⊙ v] @ wᵀ; ``inverse``: [w_cos, −w_sin, w_rest]. A new,
+    contiguous array (w may be a transposed view)."""
+    out = w.new_empty(w.shape)
     if inverse:
         out[:, :k] = w[:, k:2 * k]
         torch.neg(w[:, :k], out=out[:, k:2 * k])
@@ -221,13 +225,17 @@ class _FieldGradient(torch.autograd.Function):
             k = freqs.shape[0]
             base = 2 * k
             scaled = scaled_frequencies(freqs)  # 2π Bᵀ (d, K)
-            proj = x @ scaled  # the same product as FourierFeatures.sin_cos
-            a = x.new_empty(x.shape[0], base + width)
-            torch.sin(proj, out=a[:, :k])
-            torch.cos(proj, out=a[:, k:base])
-            if extra is not None:
-                a[:, base:] = extra
+            # the first layer's (N, 2K) arrays live transposed, φᵀ (2K, N), so that sin and cos write, and h and ḡ_0
+            # read, contiguous (K, N) blocks (ATen's vectorised sin into the strided half of an (N, 2K) array is
+            # 1.8× slower); the products take φ as a transposed view at the same rate (benchmarks/README)
+            proj = scaled.T @ x.T  # (K, N)
+            a_t = x.new_empty(base + width, x.shape[0])
+            torch.sin(proj, out=a_t[:k])
+            torch.cos(proj, out=a_t[k:base])
             del proj
+            if extra is not None:
+                a_t[base:] = extra.T
+            a = a_t.T
         else:
             base = x.shape[1]
             a = x if extra is None else torch.cat([x, extra], dim=1)
@@ -256,20 +264,23 @@ class _FieldGradient(torch.autograd.Function):
                 # z̄_l's factor g_l ⊙ σ''(z_l) = β g s (1 − s) = β (δ − s δ), one pass
                 curvature = torch.addcmul(deltas[layer], s, deltas[layer], value=-1.0)
                 curvatures[layer] = curvature.mul_(spec[1]) if spec[1] != 1.0 else curvature
-            g = deltas[layer] @ weights[layer]
+            if layer == 0 and freqs is not None:  # g_0ᵀ = W_1ᵀ δ_1ᵀ (2K + G, N), in φᵀ's layout
+                g = (weights[0].T @ deltas[0].T).T
+            else:
+                g = deltas[layer] @ weights[layer]
         g_extra = None
         if extra is not None:  # ∇f gains Σ_j g_j ∇e_j: (N, 1, G) @ (N, G, d)
             g_extra = g[:, base:].contiguous()
             extra_grad = torch.bmm(g_extra.unsqueeze(1), extra_jac).squeeze(1)
-        if freqs is not None:  # ∇f = 2π h B with h = g_sin ⊙ cos − g_cos ⊙ sin, (N, K)
-            phi = inputs[0]
-            h = g[:, :k] * phi[:, k:base]
-            h.addcmul_(g[:, k:base], phi[:, :k], value=-1.0)
-            # h @ (2πBᵀ)ᵀ with the (3, K) array transposed as a view: MKL's fast layout for three columns (in a
-            # paper step 0.9 ms against 3.4 for (3, K) @ hᵀ and 4.4 for h @ (K, 3) contiguous; benchmarks/README)
+        if freqs is not None:  # ∇f = 2π h B with h = g_sin ⊙ cos − g_cos ⊙ sin, as hᵀ (K, N)
+            g_t = g.T
+            h_t = g_t[:k] * a_t[k:base]
+            h_t.addcmul_(g_t[k:base], a_t[:k], value=-1.0)
+            # (2πBᵀ) hᵀ (d, N), both contiguous: MKL's fast layout for a three-row output (1.5 ms a (1024, 4096)
+            # hᵀ, against 9.5 and 28 for the products with hᵀ as a transposed view; benchmarks/README)
             with matmul_precision_scope(x.device.type, ctx.fast, exact=True):
-                grad = h @ scaled.T
-            del h
+                grad = (scaled @ h_t).T
+            del h_t, g_t
         else:
             grad = g[:, :base] if extra is not None else g
         if extra is not None:
@@ -311,21 +322,23 @@ class _FieldGradient(torch.autograd.Function):
             swapped = freqs is not None
             if swapped:
                 k = freqs.shape[0]
-                phi = inputs[0]
-                # v = 2π ω̄ Bᵀ (N, K) as d broadcast passes: MKL's product with an inner dimension of three is
-                # bound by writing its output, and these passes write v once
+                phi_t = inputs[0].T  # φᵀ (2K + G, N), contiguous (the forward's layout)
+                # vᵀ = 2π B ω̄ᵀ (K, N) as d broadcast passes: MKL's product with an inner dimension of three is
+                # bound by writing its output, and these passes write vᵀ once
                 scaled = scaled_frequencies(freqs)
-                v = grad_bar[:, :1] * scaled[0]
+                omega_t = grad_bar.T.contiguous()  # (d, N)
+                v_t = scaled[0][:, None] * omega_t[0]
                 for c in range(1, scaled.shape[0]):
-                    v.addcmul_(grad_bar[:, c:c + 1], scaled[c])
-                # ḡ_0 = [cos ⊙ v, −sin ⊙ v] is written as its halves swapped and unsigned, [sin ⊙ v, cos ⊙ v]: one
-                # broadcast pass over φ; the two products that read it take the swap and the sign on their
-                # (W, 2K) sides instead (_swap_halves)
-                g_bar = v.new_empty(v.shape[0], base + (0 if extra_jac is None else extra_jac.shape[1]))
-                torch.mul(phi[:, :base].view(-1, 2, k), v[:, None], out=g_bar[:, :base].view(-1, 2, k))
-                del v
+                    v_t.addcmul_(scaled[c][:, None], omega_t[c])
+                # ḡ_0 = [cos ⊙ v, −sin ⊙ v] is written as its halves swapped and unsigned, [sin ⊙ v, cos ⊙ v], and
+                # transposed like φ: one broadcast pass over φᵀ; the two products that read it take the swap and
+                # the sign on their (W, 2K) sides instead (_swap_halves)
+                g_bar_t = v_t.new_empty(base + (0 if extra_jac is None else extra_jac.shape[1]), v_t.shape[1])
+                torch.mul(phi_t[:base].view(2, k, -1), v_t, out=g_bar_t[:base].view(2, k, -1))
+                del v_t
                 if extra_jac is not None:  # ḡ_e = J_e ω̄
-                    g_bar[:, base:] = torch.bmm(extra_jac, omega_bar).squeeze(-1)
+                    g_bar_t[base:] = torch.bmm(extra_jac, omega_bar).squeeze(-1).T
+                g_bar = g_bar_t.T
             elif extra_jac is not None:
                 g_bar = torch.cat([grad_bar, torch.bmm(extra_jac, omega_bar).squeeze(-1)], dim=1)
             else:
@@ -334,7 +347,7 @@ class _FieldGradient(torch.autograd.Function):
                 jac_bar = g_extra.unsqueeze(-1) * omega_bar.transpose(1, 2)
             for layer in range(depth):
                 if layer == 0 and swapped:  # ḡ_0 swapped: δᵀ ḡ_0 = swap⁻¹(δᵀ ḡ'), ḡ_0 Wᵀ = ḡ' swap(W)ᵀ
-                    w_bar[0] = _swap_halves(deltas[0].T @ g_bar, k, inverse=True)
+                    w_bar[0] = _swap_halves((g_bar_t @ deltas[0]).T, k, inverse=True)
                     delta_bar = g_bar @ _swap_halves(weights[0], k).T
                 else:
                     w_bar[layer] = deltas[layer].T @ g_bar
