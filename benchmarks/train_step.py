@@ -20,7 +20,8 @@ training run, the process first lets glibc reuse freed memory (experiments.runne
 On a CPU it also profiles five default steps: ``products_share_of_step`` (the matrix products' share of the operator
 time, the ceiling that sin, cos, the activations and the other elementwise passes leave the fraction) and
 ``products_fraction_of_gemm_rate`` (the fraction over that share: how fast the products themselves run). Also
-measures peak memory of the 2^20-sample mass evaluation. Prints a table and saves JSON under
+measures the default step's peak memory (``step_peak_mb``, what it allocates beyond the model and optimiser) and
+that of the 2^20-sample mass evaluation. Prints a table and saves JSON under
 benchmarks/results/.
 """
 
@@ -105,6 +106,29 @@ def products_share(fn, repeats: int = 5) -> float:
     events = prof.key_averages()
     return (sum(e.self_cpu_time_total for e in events if e.key in PRODUCT_OPS)
             / sum(e.self_cpu_time_total for e in events))
+
+
+def step_peak_mb(fn, device) -> float:
+    """Peak of the memory ``fn`` allocates through torch's allocator above what was allocated before it, MiB: on a
+    CUDA device from the caching allocator's counters, on a CPU from the profiler's allocation events (glibc's
+    RSS would hide a short-lived array that reuses freed pages). Catches an array kept alive longer than needed."""
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+        base = torch.cuda.memory_allocated()
+        torch.cuda.reset_peak_memory_stats()
+        fn()
+        torch.cuda.synchronize()
+        return (torch.cuda.max_memory_allocated() - base) / 2**20
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU], profile_memory=True) as prof:
+        fn()
+    current = peak = 0
+    for event in sorted(prof.profiler.kineto_results.events(), key=lambda e: e.start_ns()):
+        if event.name() == "[memory]":
+            current += event.nbytes()
+            peak = max(peak, current)
+    return peak / 2**20
 
 
 def autograd_omega(model, x):
@@ -209,6 +233,7 @@ def main():
         share = products_share(steps["closed_form"])
         result.update({"products_share_of_step": share,
                        "products_fraction_of_gemm_rate": result["fraction_of_gemm_rate"] / share})
+    result["step_peak_mb"] = step_peak_mb(steps["closed_form"], device)  # the default step's own arrays
     reduced_rate = statistics.median(reduced_rates)
     result.update({"reduced_gemm_rate_gflops_median": reduced_rate / 1e9,
                    "medium_fraction_of_reduced_gemm_rate": flops["medium"] / median["medium"] / reduced_rate})

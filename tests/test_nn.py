@@ -214,6 +214,7 @@ def test_hand_written_gradient_network_matches_autograd(activation, rff, dim):
     f_ref, grad_ref = _plain_autograd(model, x)
     # the same operations, but the pass keeps the features transposed, so its products may round differently
     assert _relative_error(f, f_ref.detach()) <= 1e-14
+    assert grad.is_contiguous()  # (N, d) rows, whatever layout the pass keeps inside
     assert _relative_error(grad, grad_ref) <= 1e-10
     weights = torch.rand(50, dtype=torch.float64)
     params = list(model.mlp.parameters())

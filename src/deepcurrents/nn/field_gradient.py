@@ -241,7 +241,7 @@ class _FieldGradient(torch.autograd.Function):
             a = x if extra is None else torch.cat([x, extra], dim=1)
         inputs, derivs = [], []
         for w, b in zip(weights[:-1], biases[:-1], strict=True):
-            if b.dim() == 2:  # one bias per shape, as FamilyCurrent.decode adds it (the same rounding)
+            if b.dim() == 2:  # one bias per shape, added as FamilyCurrent.decode adds it
                 z = (a @ w.T).view(b.shape[0], -1, b.shape[1]).add_(b[:, None]).view(a.shape[0], -1)
             else:
                 z = torch.addmm(b, a, w.T)
@@ -279,7 +279,7 @@ class _FieldGradient(torch.autograd.Function):
             # (2πBᵀ) hᵀ (d, N), both contiguous: MKL's fast layout for a three-row output (1.5 ms a (1024, 4096)
             # hᵀ, against 9.5 and 28 for the products with hᵀ as a transposed view; benchmarks/README)
             with matmul_precision_scope(x.device.type, ctx.fast, exact=True):
-                grad = (scaled @ h_t).T
+                grad = (scaled @ h_t).T.contiguous()  # (N, d) as callers expect; a small copy
             del h_t, g_t
         else:
             grad = g[:, :base] if extra is not None else g
@@ -349,6 +349,7 @@ class _FieldGradient(torch.autograd.Function):
                 if layer == 0 and swapped:  # ḡ_0 swapped: δᵀ ḡ_0 = swap⁻¹(δᵀ ḡ'), ḡ_0 Wᵀ = ḡ' swap(W)ᵀ
                     w_bar[0] = _swap_halves((g_bar_t @ deltas[0]).T, k, inverse=True)
                     delta_bar = g_bar @ _swap_halves(weights[0], k).T
+                    del g_bar_t  # ḡ_0ᵀ is not needed past layer 0: freed when g_bar, its last view, is rebound
                 else:
                     w_bar[layer] = deltas[layer].T @ g_bar
                     delta_bar = g_bar @ weights[layer].T

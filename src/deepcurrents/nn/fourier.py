@@ -92,8 +92,8 @@ class FourierFeatures(nn.Module):
 
 def scaled_frequencies(frequencies: torch.Tensor) -> torch.Tensor:
     """2π Bᵀ, contiguous: the features' phases are x @ 2π Bᵀ (the factor on this small matrix instead of a pass
-    over the (N, K) phases; nn.field_gradient's pass uses the same product, so that both round alike).
-    (K, d) → (d, K)."""
+    over the (N, K) phases; nn.field_gradient's pass computes their transpose, (2π Bᵀ)ᵀ xᵀ, the same in float32
+    on MKL and within rounding elsewhere). (K, d) → (d, K)."""
     return ((2.0 * math.pi) * frequencies.T).contiguous()
 
 
