@@ -281,6 +281,35 @@ def test_a_target_with_faces_wound_backwards_or_repeated_reads_as_the_clean_mesh
                                                  np.cross(rim2, np.roll(rim2, -1, 0)).sum(0))
 
 
+def test_an_stl_target_and_a_seamed_obj_read_as_the_one_connected_cap(tmp_path, caplog):
+    """STL stores each triangle's corners apart, and exporters split vertices along texture seams: read as they
+    are, the STL was 624 one-triangle components (the run trained on one triangle) and the seam cut a slit into Γ.
+    Vertices at the same position are merged (a warning), so both read as the PLY's cap: its faces, area and rim."""
+    from deepcurrents.data.recon import read_target_mesh
+    from deepcurrents.data.targets import mesh_boundary_loops
+
+    cap = spherical_cap()
+    cap.export(tmp_path / "cap.ply")
+    verts, faces = read_target_mesh(tmp_path / "cap.ply")
+    cap.export(tmp_path / "cap.stl")
+    seam = [f for f in range(len(faces)) if 0 in faces[f]][:2]  # two faces at vertex 0, given their own copy
+    seamed_verts = np.concatenate([verts, verts[:1]])
+    seamed_faces = faces.copy()
+    seamed_faces[seam[0]][seamed_faces[seam[0]] == 0] = len(verts)
+    trimesh.Trimesh(seamed_verts, seamed_faces, process=False).export(tmp_path / "seam.obj")
+    (rim,) = mesh_boundary_loops(verts, faces)
+    area = trimesh.Trimesh(verts, faces).area
+    for name, copies in (("cap.stl", 3 * len(faces) - len(verts)), ("seam.obj", 1)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            v2, f2 = read_target_mesh(tmp_path / name)
+        assert f"merged {copies} vertices" in caplog.text and "several connected components" not in caplog.text
+        assert len(v2) == len(verts) and len(f2) == len(faces)
+        assert trimesh.Trimesh(v2, f2).area == pytest.approx(area, rel=1e-6)
+        (rim2,) = mesh_boundary_loops(v2, f2)
+        assert len(rim2) == len(rim)
+
+
 def _moebius(radius: float = 0.5, n: int = 40, rows: int = 3) -> trimesh.Trimesh:
     """A Möbius band: a strip of width 0.4 about a circle of ``radius``, with a half twist."""
     t = 2 * np.pi * np.arange(n) / n

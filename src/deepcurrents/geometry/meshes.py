@@ -35,7 +35,27 @@ def read_mesh(path: str | Path, what: str = "Mesh file", error: type[UserInputEr
         raise error(f"{name} holds no triangles.")
     if not np.isfinite(np.asarray(mesh.vertices)).all():
         raise error(f"{name} has NaN or infinite vertex coordinates.")
+    vertices, faces = merge_coincident_vertices(np.asarray(mesh.vertices), np.asarray(mesh.faces), name)
+    if len(vertices) < len(mesh.vertices):
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
     return mesh
+
+
+def merge_coincident_vertices(vertices: np.ndarray, faces: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """One vertex per position: STL files store every triangle's corners apart, and exporters split vertices along
+    UV and normal seams, which would make each triangle its own component or cut a slit into Γ along the seam.
+    Vertices at exactly the same coordinates are merged into the first of them, with a warning naming ``name``;
+    the kept vertices stay in the file's order, so a mesh without such copies comes back unchanged.
+    (V, 3), (F, 3) → (V', 3), (F, 3)."""
+    _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(vertices):
+        return vertices, faces
+    order = np.argsort(first)  # unique rows by first appearance
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    log.warning("%s: merged %d vertices that repeat another vertex's position (as STL files and texture seams "
+                "store them).", name, len(vertices) - len(first))
+    return vertices[first[order]], rank[inverse.reshape(-1)][faces]
 
 
 def drop_repeated_faces(faces: np.ndarray, name: str) -> np.ndarray:
