@@ -173,6 +173,39 @@ def test_curve_files(tmp_path):
     np.testing.assert_allclose(load_boundary(str(npy)).loops[0], c1)
 
 
+def test_obj_segments_chain_whichever_way_each_is_written(tmp_path, caplog):
+    """A curve written edge by edge ('l a b'), as exporters do, in shuffled order, half the edges reversed and each
+    edge with its own copies of its two vertices: one loop, the 12-gon itself (in the direction of its first
+    edge). Before, a reversed edge ended the chain and the file was refused as a loop of 2 vertices. A chain with
+    two open ends is closed with a warning; a branching one is one sentence."""
+    ring = circle(0.4, n=12)
+    rng = np.random.default_rng(0)
+    lines, edges = [], []
+    for k in rng.permutation(12):
+        a, b = ring[k], ring[(k + 1) % 12]
+        if rng.random() < 0.5:
+            a, b = b, a
+        lines += ["v " + " ".join(repr(float(c)) for c in p) for p in (a, b)]  # exact: the copies coincide
+        edges.append(f"l {len(lines) - 1} {len(lines)}")
+    path = tmp_path / "edges.obj"
+    path.write_text("\n".join(lines + edges) + "\n")
+    (loop,) = read_curve_file(path)
+    assert len(loop) == 12
+    start = int(np.argmin(np.linalg.norm(ring - loop[0], axis=1)))
+    step = 1 if np.allclose(loop[1], ring[(start + 1) % 12]) else -1
+    np.testing.assert_allclose(loop, ring[(start + step * np.arange(12)) % 12])
+    path.write_text("\n".join(lines + [e for e in edges[:-1]]) + "\n")  # one edge missing: an open chain
+    assert [len(lp) for lp in read_curve_file(path)] == [12]
+    assert "did not close" in caplog.text
+    verts = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
+    path.write_text(verts + "l 1 2\nl 1 3\nl 1 4\n")
+    with pytest.raises(BoundaryError, match="branches: 3 'l' segments meet at vertex 1"):
+        read_curve_file(path)
+    path.write_text(verts + "f 1 2 3\nf 1 3 4\n")  # a mesh, not a curve
+    with pytest.raises(BoundaryError, match="holds a mesh"):
+        read_curve_file(path)
+
+
 @pytest.mark.parametrize(
     "content, message",
     [

@@ -146,6 +146,7 @@ def write_curve_file(path: str | Path, loops: list[np.ndarray]) -> None:
 def _read_obj_polylines(path: Path) -> list[np.ndarray]:
     verts: list[list[float]] = []
     lines: list[list[int]] = []
+    has_faces = False
     for raw in path.read_text().splitlines():
         parts = raw.split("#", 1)[0].split()
         if not parts:
@@ -154,37 +155,68 @@ def _read_obj_polylines(path: Path) -> list[np.ndarray]:
             verts.append([float(x) for x in parts[1:4]])
         elif parts[0] == "l":
             lines.append([int(tok.split("/")[0]) for tok in parts[1:]])
+        elif parts[0] == "f":
+            has_faces = True
     if not verts:
         return []
     v = np.asarray(verts, dtype=np.float64)
-    if not lines:  # vertices only: one loop in file order
-        return [v]
-    loops = []
-    for idx in lines:
+    if not lines:
+        if has_faces:  # a surface, not a curve: its vertices in file order would be a meaningless loop
+            raise BoundaryError(f"Curve file '{path}' holds a mesh (f elements) but no 'l' polylines; give the "
+                                "boundary curve as 'l' elements (a mesh to reconstruct goes to experiment=recon_mesh "
+                                "data.mesh=…).")
+        return [v]  # vertices only: one loop in file order
+    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
+    same = first[inverse.reshape(-1)]  # a vertex written twice (one copy per segment) is one vertex
+    for k, idx in enumerate(lines):
         idx = [i - 1 if i > 0 else len(v) + i for i in idx]
-        if min(idx) < 0 or max(idx) >= len(v):
+        if not idx or min(idx) < 0 or max(idx) >= len(v):
             raise BoundaryError(f"Curve file '{path}' has an 'l' element referring to a missing vertex.")
-        loops.append(v[idx])
-    return _join_segments(loops)
+        lines[k] = [int(same[i]) for i in idx]
+    return [v[idx] for idx in _join_segments(lines, path)]
 
 
-def _join_segments(pieces: list[np.ndarray]) -> list[np.ndarray]:
-    """Joins 2-vertex ``l`` elements (as many exporters write) into loops; longer ones are loops already."""
-    if not all(len(p) == 2 for p in pieces):
-        return pieces
-    loops, remaining = [], [list(map(tuple, p)) for p in pieces]
-    while remaining:
-        chain = list(remaining.pop(0))
-        grew = True
-        while grew:
-            grew = False
-            for k, (a, b) in enumerate(remaining):
-                if np.allclose(a, chain[-1]):
-                    chain.append(b)
-                    remaining.pop(k)
-                    grew = True
-                    break
-        loops.append(np.asarray(chain))
+def _join_segments(lines: list[list[int]], path: Path) -> list[list[int]]:
+    """The loops of ``l`` elements as vertex index lists: an element of three or more vertices is a loop (closed
+    implicitly); 2-vertex elements, as many exporters write a curve edge by edge and in either direction, are
+    chained through their shared vertices into loops (each runs the way its first segment does). One sentence for
+    a branching curve (three or more segments at a vertex); a chain with two open ends is closed, with a warning."""
+    loops = [idx for idx in lines if len(idx) != 2]
+    segments = [idx for idx in lines if len(idx) == 2 and idx[0] != idx[1]]
+    if not segments:
+        return loops
+    neighbours: dict[int, list[int]] = {}
+    for a, b in segments:
+        neighbours.setdefault(a, []).append(b)
+        neighbours.setdefault(b, []).append(a)
+    branching = [u for u, ns in neighbours.items() if len(ns) > 2]
+    if branching:
+        raise BoundaryError(f"Curve file '{path}' branches: {len(neighbours[branching[0]])} 'l' segments meet at "
+                            f"vertex {branching[0] + 1}; a boundary is made of closed loops.")
+    seen: set[int] = set()
+    # chains with an open end first (started from that end), then closed ones
+    starts = [u for u, ns in neighbours.items() if len(ns) == 1] + [a for a, _ in segments]
+    opened = 0
+    for start in starts:
+        if start in seen:
+            continue
+        chain, prev, cur = [start], None, start
+        seen.add(start)
+        if len(neighbours[start]) == 2:  # a closed loop: leave along the first segment that starts here
+            first = next(b for a, b in segments if a == start)
+            neighbours[start].sort(key=lambda n: n != first)
+        while True:
+            nxt = [n for n in neighbours[cur] if n != prev and n not in seen]
+            if not nxt:
+                break
+            prev, cur = cur, nxt[0]
+            chain.append(cur)
+            seen.add(cur)
+        opened += len(neighbours[start]) == 1
+        loops.append(chain)
+    if opened:
+        log.warning("Curve file '%s': %d chain(s) of 'l' segments did not close; each was closed by joining its "
+                    "two ends.", path, opened)
     return loops
 
 
