@@ -310,6 +310,29 @@ def test_an_stl_target_and_a_seamed_obj_read_as_the_one_connected_cap(tmp_path, 
         assert len(rim2) == len(rim)
 
 
+def test_holes_that_touch_at_a_vertex_give_two_loops(tmp_path):
+    """A sphere missing two triangles that share only a vertex: Γ is the two triangles' borders (libigl's walk
+    broke at the shared vertex and the run was refused with "loop 1 has 0 distinct vertices"). Stokes: the loops'
+    vector areas sum to minus the missing triangles' (the sphere's faces point out, the holes' rims run the
+    other way round them)."""
+    from deepcurrents.data.recon import ReconstructionDataModule
+
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
+    faces = np.asarray(sphere.faces)
+    first = 0
+    touching = [k for k in range(1, len(faces)) if len(set(faces[k]) & set(faces[first])) == 1]
+    gone = [first, touching[0]]
+    keep = np.setdiff1d(np.arange(len(faces)), gone)
+    path = tmp_path / "two_holes.ply"
+    trimesh.Trimesh(sphere.vertices, faces[keep], process=False).export(path)
+    dm = ReconstructionDataModule(mesh=str(path), normalize=False)
+    assert sorted(len(lp) for lp in dm.loops) == [3, 3]
+    vector_area = sum(0.5 * np.cross(lp, np.roll(lp, -1, 0)).sum(0) for lp in dm.loops)
+    v = np.asarray(sphere.vertices)
+    missing = sum(0.5 * np.cross(v[faces[k][1]] - v[faces[k][0]], v[faces[k][2]] - v[faces[k][0]]) for k in gone)
+    np.testing.assert_allclose(vector_area, -missing, atol=1e-8)  # the file stores float32 coordinates
+
+
 def _moebius(radius: float = 0.5, n: int = 40, rows: int = 3) -> trimesh.Trimesh:
     """A Möbius band: a strip of width 0.4 about a circle of ``radius``, with a half twist."""
     t = 2 * np.pi * np.arange(n) / n

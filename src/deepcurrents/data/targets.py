@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from deepcurrents.data.sampling import NearTargetSampler
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry.polyline import closed_loop_segments, segment_distance
-from deepcurrents.geometry.topology import border_edges
+from deepcurrents.geometry.topology import border_edges, border_loops
 
 # the paper's surface-loss offsets ε ~ U[0.0199, 0.0201]: ε = 0.02 ± 0.5 %
 SURFACE_EPSILON = 0.02
@@ -66,10 +66,14 @@ def mesh_boundary_loops(vertices, faces) -> list[np.ndarray]:
     """
     v = _as_numpy(vertices, np.float64)
     f = _as_numpy(faces, np.int64)
-    loops = igl.boundary_loop_all(f)
+    edges = border_edges(f)
+    if len(np.unique(edges[:, 0])) < len(edges):
+        # holes that touch at a vertex (two border edges leave it): libigl's walk breaks there; the edge walk
+        # splits it into simple loops, each already in its faces' direction
+        return [v[loop] for loop in border_loops(f)]
+    loops = igl.boundary_loop_all(f)  # otherwise libigl's loops, as every run so far has had them
     if not loops:
         return []
-    edges = border_edges(f)
     forward = _edge_code(edges, len(v))
     out = []
     for loop in loops:  # a handful of loops; their vertices are handled as arrays
