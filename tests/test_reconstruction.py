@@ -19,6 +19,7 @@ from deepcurrents.data.targets import face_normals
 from deepcurrents.errors import UserInputError
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface
 from deepcurrents.experiments.runner import run_suite, train
+from deepcurrents.geometry.curves import circle, write_curve_file
 
 TINY = [*QUIET_CPU, "callbacks.model_checkpoint.every_n_train_steps=1000", "data.num_workers=0",
         "evaluation.mass_samples=2048", "evaluation.ucd_samples=4000"]
@@ -315,8 +316,6 @@ def test_holes_that_touch_at_a_vertex_give_two_loops(tmp_path):
     broke at the shared vertex and the run was refused with "loop 1 has 0 distinct vertices"). Stokes: the loops'
     vector areas sum to minus the missing triangles' (the sphere's faces point out, the holes' rims run the
     other way round them)."""
-    from deepcurrents.data.recon import ReconstructionDataModule
-
     sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
     faces = np.asarray(sphere.faces)
     first = 0
@@ -410,3 +409,37 @@ def test_a_point_cloud_with_inconsistently_oriented_normals_is_warned_about(tmp_
     rows = up * np.where(plane[:, :1] % 2 == 0, 1.0, -1.0)  # every other row flipped
     # an inner point's 4 nearest: 2 in its own row, 2 in the next rows (opposite); ties at the border move it a little
     assert abs(opposed_neighbour_normals(plane, rows, k=4) - 0.5) < 0.03
+
+
+def test_a_rim_traced_against_the_point_normals_is_reversed_with_a_warning(tmp_path, caplog):
+    """A hemisphere's points with outward normals and its rim: traced clockwise seen from the dome's side, the
+    right-hand rule puts Γ's surface on the other side and the run fitted the complement (a mesh 1.7× the target's
+    area in a probe): the loop is reversed, with a warning. Traced the right way it is kept as given, and a tube
+    (radial normals: no net direction) is never judged, whichever way its rims run."""
+    rng = np.random.default_rng(0)
+    dome = rng.normal(size=(4000, 3))
+    dome[:, 2] = np.abs(dome[:, 2])
+    dome /= np.linalg.norm(dome, axis=1, keepdims=True)
+    np.savetxt(tmp_path / "dome.xyz", np.concatenate([0.4 * dome, dome], 1))  # normals point out
+    rim = circle(0.4, n=64)  # counter-clockwise about +z: with the normals
+    np.savetxt(tmp_path / "rim.txt", rim)
+    np.savetxt(tmp_path / "rim_backwards.txt", rim[::-1])
+    for name, warned in (("rim.txt", False), ("rim_backwards.txt", True)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            dm = ReconstructionDataModule(points=str(tmp_path / "dome.xyz"), curve=str(tmp_path / name),
+                                          normalize=False)
+        (loop,) = dm.loops
+        assert 0.5 * np.cross(loop, np.roll(loop, -1, 0)).sum(0)[2] > 0
+        assert ("runs against the normals" in caplog.text) == warned
+    t = rng.uniform(0, 2 * np.pi, 4000)
+    tube = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), rng.uniform(-0.3, 0.3, 4000)], 1)
+    np.savetxt(tmp_path / "tube.xyz", np.concatenate([tube, tube * [1, 1, 0] / 0.3], 1))
+    rims = [circle(0.3, (0, 0, 0.3), n=48), circle(0.3, (0, 0, -0.3), n=48)]
+    write_curve_file(tmp_path / "rims.obj", [rims[0], rims[1]])  # both the same way round: not a tube's Γ, but
+    caplog.clear()                                                # nothing here can tell which one is wrong
+    with caplog.at_level(logging.WARNING):
+        dm = ReconstructionDataModule(points=str(tmp_path / "tube.xyz"), curve=str(tmp_path / "rims.obj"),
+                                      normalize=False)
+    assert "runs against the normals" not in caplog.text
+    np.testing.assert_allclose(dm.loops[0], rims[0])

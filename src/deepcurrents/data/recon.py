@@ -300,6 +300,7 @@ class ReconstructionDataModule(L.LightningDataModule):
             raw = load_boundary(curve, domain=np.inf).loops
             loops = validate_loops([(lp - self.offset) / self.scale for lp in raw], f"'{curve}'")
             self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
+            loops = self._orient_curve_with_normals(loops, nrm, curve, points)
             self.target = {"kind": "points", "points": pts, "normals": nrm}
         self.boundary = Boundary(loops, name)
         self.loops = loops
@@ -315,6 +316,25 @@ class ReconstructionDataModule(L.LightningDataModule):
         if dist.max() > tolerance * size:
             raise TargetError(f"Curve '{curve}' does not lie near the points of '{points}': a curve vertex "
                               f"is {dist.max():.3g} from the nearest point (allowed {tolerance * size:.3g}).")
+
+    @staticmethod
+    def _orient_curve_with_normals(loops: list[np.ndarray], normals: np.ndarray, curve, points) -> list[np.ndarray]:
+        """Γ must run with the normals (the right-hand rule: Stokes' ∫_Σ n dA = ½ ∮_Γ x × dx). Where the cloud has a
+        clear net direction (the mean unit normal ≥ 0.2 long: a cap or a disk, not a tube or a nearly closed part)
+        and Γ's vector area points against it (cosine < −0.5), every loop is reversed, with a warning: traced the
+        other way, the run fits the surface's complement (a mesh 1.7× the target's area in a probe)."""
+        vector_area = sum(0.5 * np.cross(lp, np.roll(lp, -1, 0)).sum(0) for lp in loops)
+        disks = sum(np.linalg.norm(np.roll(lp, -1, 0) - lp, axis=1).sum() ** 2 / (4 * np.pi) for lp in loops)
+        mean_normal = normals.mean(0)
+        if np.linalg.norm(mean_normal) < 0.2 or np.linalg.norm(vector_area) < 0.1 * disks:
+            return loops
+        cosine = vector_area @ mean_normal / (np.linalg.norm(vector_area) * np.linalg.norm(mean_normal))
+        if cosine >= -0.5:
+            return loops
+        log.warning("Curve '%s' runs against the normals of '%s' (by the right-hand rule its loops enclose the "
+                    "other side: cosine %.2f between its vector area and the mean normal); reversed its loops.",
+                    curve, points, cosine)
+        return [lp[::-1].copy() for lp in loops]
 
     def model_kwargs(self) -> dict:
         """The target geometry (model coordinates) and the map back to the input's coordinates."""
