@@ -80,11 +80,17 @@ def test_bad_checkpoints_are_one_sentence(run, tmp_path):
     with pytest.raises(CheckpointError, match="does not have"):
         load_module(tmp_path / "unknown.ckpt")
 
-    class OtherKind(CurrentModule):
-        pass
+    from deepcurrents.models.autodecoder import AutodecoderModule
 
-    with pytest.raises(CheckpointError, match="holds a CurrentModule, but this needs a OtherKind"):
-        load_module(good, expected=OtherKind)
+    with pytest.raises(CheckpointError, match=r"is a minimal surface's checkpoint \(experiment=minimal_\*\) "
+                                              r"\(CurrentModule\), but this needs a family run's checkpoint"):
+        load_module(good, expected=AutodecoderModule)
+    run_dir = tmp_path / "run"
+    (run_dir / "checkpoints").mkdir(parents=True)
+    (run_dir / "checkpoints" / "last.ckpt").write_bytes(good.read_bytes())
+    with pytest.raises(CheckpointError, match=r"is a directory, not a checkpoint file; this run's last one is "
+                                              r"ckpt_path='.*last\.ckpt'"):
+        load_module(run_dir)
 
 
 def test_render_app_writes_stills_turntables_and_mesh_pictures(run, tmp_path):

@@ -280,7 +280,7 @@ APP_CASES = [
     ("app checkpoint missing", extract_checkpoint, ExtractConfig, "trefoil",
      lambda tmp, ck: {"ckpt_path": str(tmp / "none.ckpt")}, "does not exist"),
     ("app checkpoint is a folder", render_checkpoint, RenderConfig, "trefoil",
-     lambda tmp, ck: {"ckpt_path": str(tmp)}, "is not a file"),
+     lambda tmp, ck: {"ckpt_path": str(tmp)}, "is a directory, not a checkpoint file"),
     ("app checkpoint text", evaluate_checkpoint, EvaluateConfig, "trefoil",
      lambda tmp, ck: {"ckpt_path": str(write(tmp / "notes.ckpt", "notes"))}, "corrupt"),
     ("app checkpoint truncated", extract_checkpoint, ExtractConfig, "trefoil",

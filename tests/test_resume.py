@@ -153,7 +153,7 @@ def refused(tmp_path: Path, overrides: list[str], match: str) -> str:
 
 def test_resume_from_missing_truncated_text_or_foreign_files_is_one_sentence(tmp_path, trefoil_ckpt):
     refused(tmp_path, [f"ckpt_path={tmp_path / 'missing.ckpt'}"], "does not exist")
-    refused(tmp_path, [f"ckpt_path={tmp_path}"], "is not a file")
+    refused(tmp_path, [f"ckpt_path={tmp_path}"], "is a directory, not a checkpoint file")
     truncated = tmp_path / "truncated.ckpt"
     truncated.write_bytes(trefoil_ckpt.read_bytes()[:3000])
     refused(tmp_path, [f"ckpt_path={truncated}"], "truncated or corrupt")

@@ -32,6 +32,11 @@ def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
     path = Path(str(ckpt_path)).expanduser()
     if not path.exists():
         raise CheckpointError(f"ckpt_path='{ckpt_path}' does not exist.")
+    if path.is_dir():
+        last = path / "checkpoints" / "last.ckpt"
+        hint = f"; this run's last one is ckpt_path='{last}'" if last.is_file() else \
+            " (a run keeps its checkpoints in checkpoints/last.ckpt)"
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' is a directory, not a checkpoint file{hint}.")
     if not path.is_file():
         raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a file.")
     try:
@@ -87,6 +92,16 @@ def module_class(class_path: str, ckpt_path: str | Path = "") -> type[DeepCurren
     return cls
 
 
+def run_kind(cls: type) -> str:
+    """The kind of run a model class is trained by, in the README's words (for messages)."""
+    words = {"AutodecoderModule": "a family run's checkpoint (experiment=latent_*)",
+             "ReconstructionModule": "a reconstruction's checkpoint (experiment=recon_*)",
+             "CurrentModule": "a minimal surface's checkpoint (experiment=minimal_*)",
+             "GridModule": "the grid method's checkpoint (experiment=minimal_grid)",
+             "ClosestPointModule": "the closest-point baseline's checkpoint (experiment=recon_baseline)"}
+    return next((words[c.__name__] for c in cls.__mro__ if c.__name__ in words), f"a {cls.__name__} checkpoint")
+
+
 def load_module(ckpt_path: str | Path, map_location: str | torch.device | None = "cpu",
                 expected: type | tuple[type, ...] | None = None) -> DeepCurrentsModule:
     """Rebuilds the model of any DeepCurrents checkpoint (class and hyperparameters from the file), in eval
@@ -95,10 +110,9 @@ def load_module(ckpt_path: str | Path, map_location: str | torch.device | None =
     info = ckpt[CHECKPOINT_KEY]
     cls = module_class(info["module"], ckpt_path)
     if expected is not None and not issubclass(cls, expected):
-        names = ", ".join(c.__name__ for c in (expected if isinstance(expected, tuple) else (expected,)))
-        raise CheckpointError(
-            f"ckpt_path='{ckpt_path}' holds a {cls.__name__}, but this needs a {names} checkpoint."
-        )
+        names = " or ".join(run_kind(c) for c in (expected if isinstance(expected, tuple) else (expected,)))
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' is {run_kind(cls)} ({cls.__name__}), but this needs "
+                              f"{names}.")
     hparams = dict(ckpt.get("hyper_parameters") or {})
     try:
         module = cls(**hparams)
