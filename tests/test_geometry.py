@@ -173,6 +173,24 @@ def test_curve_files(tmp_path):
     np.testing.assert_allclose(load_boundary(str(npy)).loops[0], c1)
 
 
+def test_text_curves_take_a_header_comments_and_blank_lines_between_loops(tmp_path):
+    """As spreadsheets and scripts write them: a header row of words, indented and trailing '#' comments, and a
+    blank line between two loops (before: the header was 'could not convert string to float', an indented comment
+    too, and the two loops became one, joined by a chord). A word row later on names its line."""
+    c1, c2 = circle(0.4, (0, 0, 0.2), n=8), circle(0.3, (0, 0, -0.2), n=6)
+    rows = ["x,y,z", "   # two rings"] + [f"{x},{y},{z}" for x, y, z in c1] + [""]
+    rows += [f"{x} {y} {z}  # ring 2" for x, y, z in c2] + ["", ""]
+    path = tmp_path / "rings.csv"
+    path.write_text("\n".join(rows))
+    loops = read_curve_file(path)
+    assert len(loops) == 2
+    np.testing.assert_allclose(loops[0], c1)
+    np.testing.assert_allclose(loops[1], c2)
+    path.write_text("\n".join(rows[2:6] + ["end of ring"] + rows[6:]))
+    with pytest.raises(BoundaryError, match=r"line 5 \('end of ring'\) is not a row of numbers"):
+        read_curve_file(path)
+
+
 def test_obj_segments_chain_whichever_way_each_is_written(tmp_path, caplog):
     """A curve written edge by edge ('l a b'), as exporters do, in shuffled order, half the edges reversed and each
     edge with its own copies of its two vertices: one loop, the 12-gon itself (in the direction of its first

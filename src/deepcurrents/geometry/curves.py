@@ -93,9 +93,9 @@ NAMED_CURVES = {
 
 
 def read_curve_file(path: str | Path) -> list[np.ndarray]:
-    """Loops from a file: ``.obj`` polylines (one ``l`` element per loop, ``v`` vertices), or ``.txt`` /
-    ``.npy`` with one ``x y z`` row per vertex of a single loop. A repeated first vertex at the end of a
-    loop is dropped. Raises BoundaryError with one sentence for unreadable or malformed files."""
+    """Loops from a file: ``.obj`` polylines (one ``l`` element per loop, ``v`` vertices), ``.txt`` / ``.csv`` with
+    one ``x y z`` row per vertex (blank lines between loops), or ``.npy`` with one loop. A repeated first vertex at
+    the end of a loop is dropped. Raises BoundaryError with one sentence for unreadable or malformed files."""
     path = Path(path)
     if not path.exists():
         raise BoundaryError(f"Curve file '{path}' does not exist.")
@@ -108,9 +108,7 @@ def read_curve_file(path: str | Path) -> list[np.ndarray]:
         elif suffix == ".npy":
             loops = [np.load(path, allow_pickle=False).astype(np.float64)]
         elif suffix in (".txt", ".xyz", ".csv"):
-            text = path.read_text()
-            rows = [ln for ln in text.replace(",", " ").splitlines() if ln.strip() and not ln.startswith("#")]
-            loops = [np.array([[float(v) for v in ln.split()] for ln in rows], dtype=np.float64)] if rows else []
+            loops = _read_text_loops(path)
         else:
             raise BoundaryError(
                 f"Curve file '{path}' has unsupported extension '{suffix}' (use .obj, .txt or .npy)."
@@ -128,6 +126,34 @@ def read_curve_file(path: str | Path) -> list[np.ndarray]:
             )
     # a loop written closed (last vertex = first) is the same loop
     return [lp[:-1] if len(lp) > 1 and np.array_equal(lp[0], lp[-1]) else lp for lp in loops]
+
+
+def _read_text_loops(path: Path) -> list[np.ndarray]:
+    """Rows of numbers (spaces or commas), one vertex per row; ``#`` starts a comment; a first row of words only
+    (a CSV header such as ``x,y,z``) is skipped; blank lines between rows separate loops."""
+    loops: list[list[list[float]]] = [[]]
+    for number, raw in enumerate(path.read_text().splitlines(), start=1):
+        tokens = raw.split("#", 1)[0].replace(",", " ").split()
+        if not tokens:
+            if not raw.strip() and loops[-1]:  # a blank line ends a loop
+                loops.append([])
+            continue
+        try:
+            loops[-1].append([float(t) for t in tokens])
+        except ValueError:
+            if number == 1 and not any(_is_number(t) for t in tokens):
+                continue  # a header row
+            raise BoundaryError(f"Curve file '{path}': line {number} ({raw.strip()[:40]!r}) is not a row of "
+                                "numbers (comment it out with '#').") from None
+    return [np.array(rows, dtype=np.float64) for rows in loops if rows]
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
 
 
 def write_curve_file(path: str | Path, loops: list[np.ndarray]) -> None:
