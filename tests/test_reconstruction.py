@@ -216,7 +216,7 @@ def bad_inputs(tmp_path: Path, parts_root: Path):
         ({"mesh": str(_mesh_file(tmp_path, trimesh.creation.icosphere(1), "closed.ply"))}, "is closed"),
         ({"mesh": str(_mesh_file(tmp_path, tri, "nonmanifold.ply"))}, "non-manifold edges"),
         ({"points": str(no_normals), "curve": str(far_curve)}, "has no normals"),
-        ({"points": str(oriented), "curve": str(far_curve)}, "does not lie near the points"),
+        ({"points": str(oriented), "curve": str(far_curve)}, "data.curve_tolerance=0.05 of the cloud's size"),
         ({"points": str(oriented)}, "needs data.curve"),
         ({"category": "hands", "index": 7, "root": str(parts_root)}, "out of range"),
         ({"category": "hands", "root": str(tmp_path / "nowhere")}, "make data"),
@@ -443,3 +443,12 @@ def test_a_rim_traced_against_the_point_normals_is_reversed_with_a_warning(tmp_p
                                       normalize=False)
     assert "runs against the normals" not in caplog.text
     np.testing.assert_allclose(dm.loops[0], rims[0])
+
+
+def test_a_mesh_target_says_it_ignores_points_and_curve(tmp_path, caplog):
+    """data.mesh wins over data.points / data.curve (Γ is the mesh's boundary): said in a warning, not silently."""
+    spherical_cap().export(tmp_path / "cap.ply")
+    np.savetxt(tmp_path / "rim.txt", circle(0.3, n=16))
+    with caplog.at_level(logging.WARNING):
+        ReconstructionDataModule(mesh=str(tmp_path / "cap.ply"), curve=str(tmp_path / "rim.txt"), normalize=False)
+    assert "data.mesh is given, so data.curve is ignored" in caplog.text

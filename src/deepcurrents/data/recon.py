@@ -272,6 +272,10 @@ class ReconstructionDataModule(L.LightningDataModule):
                          "boundary_weighting": bool(boundary_weighting), "surface_loss": bool(surface_loss)}
         self.num_workers, self.seed = num_workers, seed
 
+        if mesh is not None and (points is not None or curve is not None):  # the mesh wins: say so
+            ignored = " and ".join(k for k, v in (("data.points", points), ("data.curve", curve)) if v is not None)
+            log.warning("data.mesh is given, so %s %s ignored: Γ is the mesh's own boundary.", ignored,
+                        "are" if " and " in ignored else "is")
         if mesh is None and points is None:
             if category is None:
                 raise ConfigError("Reconstruction needs a target: data.mesh=PATH, data.points=PATH with "
@@ -315,7 +319,8 @@ class ReconstructionDataModule(L.LightningDataModule):
         size = float((pts.max(0) - pts.min(0)).max())
         if dist.max() > tolerance * size:
             raise TargetError(f"Curve '{curve}' does not lie near the points of '{points}': a curve vertex "
-                              f"is {dist.max():.3g} from the nearest point (allowed {tolerance * size:.3g}).")
+                              f"is {dist.max():.3g} from the nearest point (allowed {tolerance * size:.3g}: "
+                              f"data.curve_tolerance={tolerance:g} of the cloud's size).")
 
     @staticmethod
     def _orient_curve_with_normals(loops: list[np.ndarray], normals: np.ndarray, curve, points) -> list[np.ndarray]:
