@@ -99,6 +99,27 @@ def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):
     np.testing.assert_array_equal(target.faces, dm.target["faces"])
     np.testing.assert_allclose(TargetGeometry.to_input(module, np.asarray(target.vertices)),
                                big.vertices[np.unique(big.faces)], atol=1e-9)
+    # the apps read and write the files in the input's units, as the run did: evaluate's mesh= (the run's own
+    # mesh.ply) gives the run's numbers (before: boundary_error ≈ |offset|, the file taken in the model's frame),
+    # and extract's mesh lies where the run's does (before: in the model's box)
+    from omegaconf import OmegaConf
+
+    from deepcurrents.cli.evaluate import EvaluateConfig, evaluate_checkpoint
+    from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
+
+    ckpt = str(tmp_path / "run" / "checkpoints" / "last.ckpt")
+    cfg = OmegaConf.merge(OmegaConf.structured(EvaluateConfig),
+                          {"ckpt_path": ckpt, "mesh": str(tmp_path / "run" / "mesh.ply"), "target": str(path),
+                           "samples": 2000, "mass_samples": 1024, "out_dir": str(tmp_path / "eval")})
+    again = evaluate_checkpoint(cfg)
+    assert again["mesh_area"] == pytest.approx(metrics["mesh_area"], rel=1e-5)
+    assert again["boundary_error"] == pytest.approx(metrics["boundary_error"], rel=1e-3, abs=1e-9)
+    assert again["ucd_input_units"] == pytest.approx(again["ucd"] * dm.scale, rel=1e-9)
+    cfg = OmegaConf.merge(OmegaConf.structured(ExtractConfig),
+                          {"ckpt_path": ckpt, "resolution": 24, "picture": False, "out_dir": str(tmp_path / "ext")})
+    summary = extract_checkpoint(cfg)
+    extracted = trimesh.load(summary["mesh"], process=False)
+    assert np.all(extracted.vertices > lo - margin) and np.all(extracted.vertices < hi + margin)
 
 
 def test_oriented_point_cloud_run(tmp_path):

@@ -7,9 +7,11 @@ Writes ``metrics.json`` (in a folder named after the checkpoint beside it, or ``
   ``mass_area`` (``mass_length`` in 2D) with its standard error;
 - 3D: ``mesh_area``, ``mesh_faces``, ``boundary_error`` of the extracted surface (or of ``mesh=``);
 - with ``target=``: ``ucd`` = E_{y ~ U(target)} dist(y, mesh) (the paper's UCD, ``samples`` uniform points),
-  ``ucd_reverse`` (mesh → target) and ``chamfer`` (their mean), in the meshes' units; a reconstruction that
-  normalised its target (data.normalize) is compared in its own frame, as its run was, and ``ucd_input_units``
-  gives the UCD in the target file's units.
+  ``ucd_reverse`` (mesh → target) and ``chamfer`` (their mean), in the meshes' units.
+
+A run that normalised its curve or target (data.normalize): ``target=`` and ``mesh=`` are in the input's units (as
+the run's own mesh.ply) and move into the model's frame, where the numbers are computed, as the run's were;
+``ucd_input_units`` gives the UCD in the files' units, and the mesh written here is in the input's units.
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ from deepcurrents.eval.metrics import (
     unidirectional_chamfer,
 )
 from deepcurrents.geometry.meshes import read_mesh
-from deepcurrents.models.loading import load_module, resolve_device, viewable_current
+from deepcurrents.models.current_module import input_mesh
+from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.evaluate")
 
@@ -75,12 +78,18 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     evaluation = run_evaluation(module)
     seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
     mesh = None
+    # a run that normalised its curve or target: files given here are in the input's units, as the run's mesh.ply
+    # is, and move into the model's frame, where the current's numbers are
+    frame = file_frame(module)
+    if frame is not None:
+        given, target = (None if m is None else trimesh.Trimesh((np.asarray(m.vertices) - frame[1]) / frame[0],
+                                                                m.faces, process=False) for m in (given, target))
     if current.dim == 3:  # the mesh first: with evaluation.mass_refine_mesh the mass estimate refines its cells
         if given is not None:
             mesh = given
         else:
             mesh = extract_surface(current, **mesh_settings(module, cfg.shape, resolution=cfg.resolution)).mesh
-            mesh.export(out / "mesh.ply")
+            (mesh if frame is None else input_mesh(mesh, frame)).export(out / "mesh.ply")
     # the run's own estimate (its sample count, early stop, refinement near Γ and its mesh, tube about Γ), or exactly
     # mass_samples
     settings = mass_estimate_settings(evaluation, mesh)
@@ -110,32 +119,14 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
             if len(mesh.faces) == 0:
                 log.warning("The extracted mesh is empty: its distances to the target are undefined.")
                 metrics.update(ucd=None, ucd_reverse=None, chamfer=None)
-            else:
-                scale, offset = target_frame(module)
-                if given is None and scale is not None:
-                    # a run that normalised its target meshes in its own frame: the target file moves there,
-                    # so ucd matches the run's metrics.json, and ucd_input_units is in the file's units
-                    target = trimesh.Trimesh((np.asarray(target.vertices) - offset) / scale, target.faces,
-                                             process=False)
+            else:  # in the model's frame, so that ucd matches the run's metrics.json
                 ucd = unidirectional_chamfer(target, mesh, samples, seed)
                 reverse = unidirectional_chamfer(mesh, target, samples, seed)
                 metrics.update(ucd=ucd, ucd_reverse=reverse, chamfer=0.5 * (ucd + reverse))
-                if given is None and scale is not None:
-                    metrics["ucd_input_units"] = ucd * scale
+                if frame is not None:
+                    metrics["ucd_input_units"] = ucd * frame[0]
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
-
-
-def target_frame(module) -> tuple[float | None, np.ndarray | None]:
-    """(scale, offset) of a reconstruction whose target was normalised (input = model·scale + offset), else
-    (None, None): then the model's frame is the target file's."""
-    scale, offset = getattr(module, "target_scale", None), getattr(module, "target_offset", None)
-    if scale is None or offset is None:
-        return None, None
-    scale, offset = float(scale), offset.detach().cpu().double().numpy()
-    if scale == 1.0 and not np.abs(offset).max() > 0:
-        return None, None
-    return scale, offset
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="evaluate")

@@ -24,8 +24,8 @@ from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import curve_length, mesh_summary
 from deepcurrents.eval.render import Camera, render_mesh
-from deepcurrents.models.current_module import input_frame, input_mesh, metrics_in_input_units
-from deepcurrents.models.loading import load_module, resolve_device, viewable_current
+from deepcurrents.models.current_module import input_mesh, metrics_in_input_units
+from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.extract")
 
@@ -89,8 +89,9 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     path = out / f"{stem}.{fmt}"
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     summary = {"mesh": str(path), "resolution": int(cfg.resolution), **mesh_summary(result, loops)}
-    # a curve that data.normalize moved into the box: the mesh and its numbers in the curve's own coordinates
-    frame = input_frame((getattr(module, "hparams", None) or {}).get("boundary") or {})
+    # a curve or target that data.normalize moved into the box: the mesh and its numbers in the file's coordinates,
+    # as the run's own mesh.ply
+    frame = file_frame(module)
     if frame is not None:
         input_mesh(mesh, frame).export(path)
         summary = metrics_in_input_units(summary, *frame)

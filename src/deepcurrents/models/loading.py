@@ -14,10 +14,12 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.models.base import CHECKPOINT_KEY, DeepCurrentsModule
+from deepcurrents.models.current_module import input_frame
 
 
 class CheckpointError(UserInputError):
@@ -90,6 +92,18 @@ def module_class(class_path: str, ckpt_path: str | Path = "") -> type[DeepCurren
             f"ckpt_path='{ckpt_path}' names '{class_path}', which is not a DeepCurrents model."
         )
     return cls
+
+
+def file_frame(module) -> tuple[float, np.ndarray] | None:
+    """(scale, offset) from the model's box to the coordinates of the files the run was given, input = model ·
+    scale + offset: a reconstruction's normalised target, else a normalised curve's (the frame of the run's own
+    mesh.ply); None where the two coincide."""
+    scale, offset = getattr(module, "target_scale", None), getattr(module, "target_offset", None)
+    if scale is not None and offset is not None:
+        scale, offset = float(scale), offset.detach().cpu().double().numpy()
+        if scale != 1.0 or np.abs(offset).max() > 0:
+            return scale, offset
+    return input_frame((getattr(module, "hparams", None) or {}).get("boundary") or {})
 
 
 def run_kind(cls: type) -> str:
