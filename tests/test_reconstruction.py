@@ -473,3 +473,24 @@ def test_a_mesh_target_says_it_ignores_points_and_curve(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         ReconstructionDataModule(mesh=str(tmp_path / "cap.ply"), curve=str(tmp_path / "rim.txt"), normalize=False)
     assert "data.mesh is given, so data.curve is ignored" in caplog.text
+
+
+def test_a_target_only_moved_into_the_box_still_reports_input_units(tmp_path):
+    """A unit square at x ≈ 3: data.normalize=auto moves it into the box without scaling (scale 1). Its
+    metrics.json has ucd_input_units as every normalised run's does (before: only when the target was scaled)."""
+    u = np.linspace(0.0, 1.0, 5)
+    grid = np.stack(np.meshgrid(u, u, indexing="ij"), -1).reshape(-1, 2)
+    idx = np.arange(25).reshape(5, 5)
+    faces = np.concatenate([np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
+                            np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3)])
+    path = tmp_path / "square.ply"
+    trimesh.Trimesh(np.c_[grid + [3.0, 0.0], np.zeros(25)], faces, process=False).export(path)
+    dm = ReconstructionDataModule(mesh=str(path))
+    assert dm.scale == 1.0 and np.abs(dm.offset).max() > 2
+    cfg = compose_cfg(["experiment=recon_mesh", f"data.mesh={path}", *TINY, "trainer.max_steps=2",
+                       "data.num_samples=64", "data.num_surface_samples=64", "model.rff.num_frequencies=16",
+                       "model.net.width=16", "model.net.depth=1", "evaluation.mesh.resolution=16",
+                       "model.net.zero_init_output=false"])
+    metrics = train(cfg, out_dir=tmp_path / "run")
+    assert metrics["ucd"] is not None and metrics["ucd_input_units"] == metrics["ucd"]
+    assert metrics["mesh_area_input_units"] == metrics["mesh_area"]

@@ -181,10 +181,11 @@ class ReconstructionModule(CurrentModule):
         seed = int(self.evaluation.get("seed", 12345))
         metrics.update(reconstruction_metrics(self, mesh, samples, seed))
         scale = float(self.target_scale)
-        if scale != 1.0 and metrics["ucd"] is not None:
+        moved = scale != 1.0 or float(self.target_offset.abs().max()) > 0
+        if moved and metrics["ucd"] is not None:  # a shift alone too, so every normalised run has the keys
             metrics["ucd_input_units"] = metrics["ucd"] * scale
             metrics["ucd_reverse_input_units"] = metrics["ucd_reverse"] * scale
-        if scale != 1.0 or float(self.target_offset.abs().max()) > 0:
+        if moved:
             # the mesh and Γ in the input's coordinates, so that they compare with the user's file
             trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
                             process=False).export(out_dir / "mesh.ply")
