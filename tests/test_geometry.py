@@ -1,5 +1,6 @@
 """Biot–Savart fields, solid angles and boundary curves against independent truth."""
 
+import logging
 import math
 
 import numpy as np
@@ -18,6 +19,7 @@ from deepcurrents.geometry import (
     solid_angle,
     trefoil,
 )
+from deepcurrents.geometry.curves import write_curve_file
 from deepcurrents.geometry.polyline import (
     polyline_hausdorff,
     project_to_segments,
@@ -189,6 +191,21 @@ def test_text_curves_take_a_header_comments_and_blank_lines_between_loops(tmp_pa
     path.write_text("\n".join(rows[2:6] + ["end of ring"] + rows[6:]))
     with pytest.raises(BoundaryError, match=r"line 5 \('end of ring'\) is not a row of numbers"):
         read_curve_file(path)
+
+
+def test_a_curve_drawn_twice_is_warned_about(tmp_path, caplog):
+    """A loop that runs round twice, or the same loop listed twice, makes α double the curve (accepted before
+    without a word; the probe's runs left the loop open); two different rings say nothing."""
+    ring, other = circle(0.4, n=20), circle(0.3, (0, 0, 0.2), n=20)
+    np.savetxt(tmp_path / "round_twice.txt", np.concatenate([ring, ring]))
+    write_curve_file(tmp_path / "listed_twice.obj", [ring, ring])
+    write_curve_file(tmp_path / "two_rings.obj", [ring, other])
+    for name, said in (("round_twice.txt", "passes 20 of its vertices twice"),
+                       ("listed_twice.obj", "loops 0 and 1 are the same curve"), ("two_rings.obj", None)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            load_boundary(str(tmp_path / name))
+        assert (said in caplog.text) if said else "twice" not in caplog.text and "same curve" not in caplog.text
 
 
 def test_obj_segments_chain_whichever_way_each_is_written(tmp_path, caplog):

@@ -319,6 +319,24 @@ def validate_loops(loops: list[np.ndarray], source: str, domain: float = 1.0) ->
     return clean
 
 
+def warn_retraced(loops: list[np.ndarray], source: str) -> None:
+    """Warnings for a curve file that draws a curve twice: a loop passing a third or more of its vertices twice
+    (round twice, or out and back), or two loops through the same vertices. α doubles or cancels such a curve,
+    which is rarely what was meant; not refused, as a boundary of multiplicity two is still a current's."""
+    for i, loop in enumerate(loops):
+        repeated = len(loop) - len(np.unique(loop, axis=0))
+        if repeated >= max(len(loop) // 3, 1):
+            name = f"{source}" + (f" (loop {i})" if len(loops) > 1 else "")
+            log.warning("Boundary %s passes %d of its vertices twice: is it traced twice, or back along itself? "
+                        "α doubles or cancels the curve where it does.", name, repeated)
+    keys = [frozenset(map(tuple, lp)) for lp in loops]
+    for j in range(len(loops)):
+        for i in range(j):
+            if keys[i] == keys[j]:
+                log.warning("Boundary %s: loops %d and %d are the same curve; α doubles it (or cancels it, if "
+                            "they run opposite ways).", source, i, j)
+
+
 # Curves are kept this far inside the box U = [-1, 1]^3: f has no condition on ∂U, so a current may end on the
 # wall instead of spanning Γ. Measured (benchmarks/curve_margin.py, converged grid currents of Enneper's curve at
 # equal resolution per curve size): area/exact 0.32 at max|x| = 0.9, 0.56 at 0.8, 0.87 at 0.7, 1.3% low at
@@ -390,6 +408,7 @@ def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1
         name = Path(key).stem
     loops = validate_loops([np.asarray(loop, dtype=np.float64) * scale for loop in loops], f"'{key}'",
                            domain=np.inf)
+    warn_retraced(loops, f"'{key}'")
     if max_vertices is not None:
         loops = [_resample(lp, int(max_vertices), f"'{key}'" + (f" (loop {i})" if len(loops) > 1 else ""))
                  for i, lp in enumerate(loops)]
