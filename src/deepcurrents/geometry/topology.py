@@ -20,9 +20,10 @@ def border_edges(faces: np.ndarray) -> np.ndarray:
 def border_loops(faces: np.ndarray) -> list[np.ndarray]:
     """Border loops of a triangle mesh as vertex index arrays (M_i,), each following its faces' orientation.
 
-    Walks edges, not vertices: where two loops touch at a vertex (two border edges leave it), each edge is
-    still used once, and the walk splits there into simple loops. Border edges that close no loop
-    (inconsistently oriented faces) are left out.
+    Walks edges, not vertices: where loops touch at a vertex (two border edges leave it), each edge is still used
+    once, and whenever the walk comes back to a vertex it has passed, the stretch since then is cut off as a loop
+    of its own, so every loop is simple whatever the faces' order. Border edges that close no loop
+    (inconsistently oriented faces) and loops of fewer than 3 vertices are left out.
     """
     edges = border_edges(faces)
     outgoing: dict[int, list[int]] = {}
@@ -34,16 +35,19 @@ def border_loops(faces: np.ndarray) -> list[np.ndarray]:
     for first in range(len(edges)):
         if used[first]:
             continue
-        start, loop, e = int(edges[first, 0]), [], first
-        while True:
+        walk, where, e = [int(edges[first, 0])], {int(edges[first, 0]): 0}, first
+        while e is not None:
             used[e] = True
-            loop.append(int(edges[e, 0]))
             v = heads[e]
-            if v == start:
-                break
-            e = next((k for k in outgoing.get(v, ()) if not used[k]), None)
-            if e is None:
-                break
-        if v == start and len(loop) >= 3:
-            loops.append(np.asarray(loop))
+            if v in where:  # a closed stretch: from v's first visit back to v
+                k = where[v]
+                if len(walk) - k >= 3:
+                    loops.append(np.asarray(walk[k:]))
+                for u in walk[k + 1:]:
+                    del where[u]
+                del walk[k + 1:]
+            else:
+                where[v] = len(walk)
+                walk.append(v)
+            e = next((k for k in outgoing.get(walk[-1], ()) if not used[k]), None)
     return loops
