@@ -191,6 +191,14 @@ def test_text_curves_take_a_header_comments_and_blank_lines_between_loops(tmp_pa
     path.write_text("\n".join(rows[2:6] + ["end of ring"] + rows[6:]))
     with pytest.raises(BoundaryError, match=r"line 5 \('end of ring'\) is not a row of numbers"):
         read_curve_file(path)
+    # blank lines that are spacing, not separators: one loop (a stray one mid-loop, double spacing, \r\r\n line
+    # ends, which read as a blank line after every row), with a byte-order mark and a header after a comment
+    ring = [f"{x} {y} {z}" for x, y, z in c1]
+    for text in ("\n".join(ring[:4] + [""] + ring[4:]), "\n\n".join(ring), "\r\r\n".join(ring),
+                 "\ufeff# exported\nx y z\n" + "\n".join(ring)):
+        path.write_bytes(text.encode("utf-8"))
+        (loop,) = read_curve_file(path)
+        np.testing.assert_allclose(loop, c1)
 
 
 def test_a_curve_drawn_twice_is_warned_about(tmp_path, caplog):
@@ -232,6 +240,18 @@ def test_obj_segments_chain_whichever_way_each_is_written(tmp_path, caplog):
     path.write_text("\n".join(lines + [e for e in edges[:-1]]) + "\n")  # one edge missing: an open chain
     assert [len(lp) for lp in read_curve_file(path)] == [12]
     assert "did not close" in caplog.text
+    # written from the far end backwards (l 12 1, l 11 12, ...; the last edge missing): still the segments' way
+    back = [f"v {x!r} {y!r} {z!r}" for x, y, z in ring.tolist()] + [f"l {k + 1} {k + 2}" for k in range(10, -1, -1)]
+    path.write_text("\n".join(back) + "\n")
+    (loop,) = read_curve_file(path)
+    assert 0.5 * np.cross(loop, np.roll(loop, -1, 0)).sum(0)[2] > 0  # counter-clockwise, as ring and its edges
+    # two squares that share a corner, edge by edge, and vertex copies that differ in the ninth digit: two loops
+    square = [(0, 0), (1, 0), (1, 1), (0, 1), (-1, 0), (-1, -1), (0, -1)]
+    rows = [f"v {0.1 * x + 1e-10 * k} {0.1 * y} 0" for k, (x, y) in enumerate(square)]
+    rows += [f"v {0.1 * x} {0.1 * y} 1e-10" for x, y in square]
+    rows += [f"l {a} {b + 7}" for a, b in ((1, 2), (2, 3), (3, 4), (4, 1), (1, 5), (5, 6), (6, 7), (7, 1))]
+    path.write_text("\n".join(rows) + "\n")
+    assert sorted(len(lp) for lp in read_curve_file(path)) == [4, 4]
     verts = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n"
     path.write_text(verts + "l 1 2\nl 1 3\nl 1 4\n")
     with pytest.raises(BoundaryError, match="branches: 3 'l' segments meet at vertex 1"):

@@ -118,7 +118,9 @@ def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):
     cfg = OmegaConf.merge(OmegaConf.structured(ExtractConfig),
                           {"ckpt_path": ckpt, "resolution": 24, "picture": False, "out_dir": str(tmp_path / "ext")})
     summary = extract_checkpoint(cfg)
+    assert summary["mesh_area_input_units"] == pytest.approx(summary["mesh_area"] * dm.scale**2, rel=1e-9)
     extracted = trimesh.load(summary["mesh"], process=False)
+    assert extracted.area == pytest.approx(summary["mesh_area_input_units"], rel=1e-5)
     assert np.all(extracted.vertices > lo - margin) and np.all(extracted.vertices < hi + margin)
 
 
@@ -455,6 +457,21 @@ def test_a_rim_traced_against_the_point_normals_is_reversed_with_a_warning(tmp_p
         (loop,) = dm.loops
         assert 0.5 * np.cross(loop, np.roll(loop, -1, 0)).sum(0)[2] > 0
         assert ("runs against the normals" in caplog.text) == warned
+    # a vase (a sphere open above z = 0.36) scanned from above, its upper half 4× denser: unweighted, the normals'
+    # mean points up, against the rim's correct vector area (−z); weighted by each point's share of the area it
+    # points down, and the correctly traced rim is kept
+    vase = rng.normal(size=(40000, 3))
+    vase /= np.linalg.norm(vase, axis=1, keepdims=True)
+    vase = vase[(vase[:, 2] < 0.9) & ((vase[:, 2] > 0) | (rng.uniform(size=40000) < 0.25))]
+    assert vase.mean(0)[2] > 0.2
+    np.savetxt(tmp_path / "vase.xyz", np.concatenate([0.4 * vase, vase], 1))
+    np.savetxt(tmp_path / "vase_rim.txt", circle(0.4 * np.sqrt(0.19), (0, 0, 0.36), n=48)[::-1])
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        dm = ReconstructionDataModule(points=str(tmp_path / "vase.xyz"), curve=str(tmp_path / "vase_rim.txt"),
+                                      normalize=False)
+    assert "runs against the normals" not in caplog.text
+    assert 0.5 * np.cross(dm.loops[0], np.roll(dm.loops[0], -1, 0)).sum(0)[2] < 0
     t = rng.uniform(0, 2 * np.pi, 4000)
     tube = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), rng.uniform(-0.3, 0.3, 4000)], 1)
     np.savetxt(tmp_path / "tube.xyz", np.concatenate([tube, tube * [1, 1, 0] / 0.3], 1))
@@ -468,13 +485,18 @@ def test_a_rim_traced_against_the_point_normals_is_reversed_with_a_warning(tmp_p
     np.testing.assert_allclose(dm.loops[0], rims[0])
 
 
-def test_a_mesh_target_says_it_ignores_points_and_curve(tmp_path, caplog):
-    """data.mesh wins over data.points / data.curve (Γ is the mesh's boundary): said in a warning, not silently."""
+def test_a_mesh_target_says_it_ignores_points_and_curve(tmp_path, caplog, parts_root):
+    """data.mesh (or data.category) wins over data.curve (Γ is the mesh's boundary): said in a warning, not
+    silently."""
     spherical_cap().export(tmp_path / "cap.ply")
     np.savetxt(tmp_path / "rim.txt", circle(0.3, n=16))
     with caplog.at_level(logging.WARNING):
         ReconstructionDataModule(mesh=str(tmp_path / "cap.ply"), curve=str(tmp_path / "rim.txt"), normalize=False)
     assert "data.mesh is given, so data.curve is ignored" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        ReconstructionDataModule(category="hands", root=str(parts_root), curve=str(tmp_path / "rim.txt"))
+    assert "data.category is given, so data.curve is ignored" in caplog.text
 
 
 def test_a_target_only_moved_into_the_box_still_reports_input_units(tmp_path):

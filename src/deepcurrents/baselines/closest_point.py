@@ -124,7 +124,8 @@ class ClosestPointModule(DeepCurrentsModule):
                    "loss": float(((pred_y - y) ** 2).sum(1).mean()), **self.run_metrics(),
                    "target": self.target_source}
         scale = float(self.target_scale)
-        if scale != 1.0:  # a normalised target (data.normalize): the UCD in the target file's units as well
+        if scale != 1.0 or float(self.target_offset.abs().max()) > 0:  # normalised (data.normalize), if only moved:
+            # the UCD in the target file's units as well, as ReconstructionModule gives it
             metrics["ucd_input_units"] = ucd * scale
             metrics["ucd_reverse_input_units"] = reverse * scale
         trimesh.PointCloud(TargetGeometry.to_input(self, pred)).export(out_dir / "points.ply")

@@ -94,7 +94,10 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     frame = file_frame(module)
     if frame is not None:
         input_mesh(mesh, frame).export(path)
-        summary = metrics_in_input_units(summary, *frame)
+        if getattr(module, "target_scale", None) is not None:  # a reconstruction's keys, as in its metrics.json
+            summary["mesh_area_input_units"] = summary["mesh_area"] * frame[0] ** 2
+        else:  # a minimal surface's: the plain keys in the curve's units, the model's as <key>_normalized
+            summary = metrics_in_input_units(summary, *frame)
     else:
         mesh.export(path)
     (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))

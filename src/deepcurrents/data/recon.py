@@ -272,9 +272,10 @@ class ReconstructionDataModule(L.LightningDataModule):
                          "boundary_weighting": bool(boundary_weighting), "surface_loss": bool(surface_loss)}
         self.num_workers, self.seed = num_workers, seed
 
-        if mesh is not None and (points is not None or curve is not None):  # the mesh wins: say so
+        if (mesh is not None or points is None and category is not None) and (points or curve) is not None:
             ignored = " and ".join(k for k, v in (("data.points", points), ("data.curve", curve)) if v is not None)
-            log.warning("data.mesh is given, so %s %s ignored: Γ is the mesh's own boundary.", ignored,
+            log.warning("%s is given, so %s %s ignored: Γ is the mesh's own boundary.",
+                        "data.mesh" if mesh is not None else "data.category", ignored,
                         "are" if " and " in ignored else "is")
         if mesh is None and points is None:
             if category is None:
@@ -304,7 +305,7 @@ class ReconstructionDataModule(L.LightningDataModule):
             raw = load_boundary(curve, domain=np.inf).loops
             loops = validate_loops([(lp - self.offset) / self.scale for lp in raw], f"'{curve}'")
             self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
-            loops = self._orient_curve_with_normals(loops, nrm, curve, points)
+            loops = self._orient_curve_with_normals(loops, pts, nrm, curve, points)
             self.target = {"kind": "points", "points": pts, "normals": nrm}
         self.boundary = Boundary(loops, name)
         self.loops = loops
@@ -323,14 +324,21 @@ class ReconstructionDataModule(L.LightningDataModule):
                               f"data.curve_tolerance={tolerance:g} of the cloud's size).")
 
     @staticmethod
-    def _orient_curve_with_normals(loops: list[np.ndarray], normals: np.ndarray, curve, points) -> list[np.ndarray]:
-        """Γ must run with the normals (the right-hand rule: Stokes' ∫_Σ n dA = ½ ∮_Γ x × dx). Where the cloud has a
-        clear net direction (the mean unit normal ≥ 0.2 long: a cap or a disk, not a tube or a nearly closed part)
-        and Γ's vector area points against it (cosine < −0.5), every loop is reversed, with a warning: traced the
-        other way, the run fits the surface's complement (a mesh 1.7× the target's area in a probe)."""
+    def _orient_curve_with_normals(loops: list[np.ndarray], pts: np.ndarray, normals: np.ndarray, curve,
+                                   points) -> list[np.ndarray]:
+        """Γ must run with the normals (the right-hand rule: Stokes' ∫_Σ n dA = ½ ∮_Γ x × dx). The integral is
+        estimated with each point's share of the area, the square of the distance to its 8th neighbour (scans
+        sample unevenly). Where the cloud has a clear net direction (that mean unit normal ≥ 0.2 long: a cap or
+        a disk, not a tube or a nearly closed part) and Γ's vector area points against it (cosine < −0.5), every
+        loop is reversed, with a warning: traced the other way, the run fits the surface's complement (a mesh
+        1.7× the target's area in a probe)."""
+        from scipy.spatial import cKDTree
+
         vector_area = sum(0.5 * np.cross(lp, np.roll(lp, -1, 0)).sum(0) for lp in loops)
         disks = sum(np.linalg.norm(np.roll(lp, -1, 0) - lp, axis=1).sum() ** 2 / (4 * np.pi) for lp in loops)
-        mean_normal = normals.mean(0)
+        k = min(8, len(pts) - 1)
+        share = cKDTree(pts).query(pts, k=k + 1)[0][:, -1] ** 2 if k > 0 else np.ones(len(pts))
+        mean_normal = (share[:, None] * normals).sum(0) / max(share.sum(), 1e-300)
         if np.linalg.norm(mean_normal) < 0.2 or np.linalg.norm(vector_area) < 0.1 * disks:
             return loops
         cosine = vector_area @ mean_normal / (np.linalg.norm(vector_area) * np.linalg.norm(mean_normal))

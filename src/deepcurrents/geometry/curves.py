@@ -15,6 +15,7 @@ import torch
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.geometry.polyline import resample_loop
+from deepcurrents.geometry.topology import first_copies
 
 log = logging.getLogger(__name__)
 
@@ -130,22 +131,41 @@ def read_curve_file(path: str | Path) -> list[np.ndarray]:
 
 def _read_text_loops(path: Path) -> list[np.ndarray]:
     """Rows of numbers (spaces or commas), one vertex per row; ``#`` starts a comment; a first row of words only
-    (a CSV header such as ``x,y,z``) is skipped; blank lines between rows separate loops."""
-    loops: list[list[list[float]]] = [[]]
-    for number, raw in enumerate(path.read_text().splitlines(), start=1):
+    (a CSV header such as ``x,y,z``) is skipped; blank lines separate loops when every block they delimit is a
+    closed loop of its own (``_closes``); otherwise they are spacing (double line ends, double spacing, a stray
+    blank line inside a loop)."""
+    blocks: list[list[list[float]]] = [[]]
+    seen_row = False
+    for number, raw in enumerate(path.read_text(encoding="utf-8-sig").splitlines(), start=1):
         tokens = raw.split("#", 1)[0].replace(",", " ").split()
         if not tokens:
-            if not raw.strip() and loops[-1]:  # a blank line ends a loop
-                loops.append([])
+            if not raw.strip() and blocks[-1]:
+                blocks.append([])
             continue
         try:
-            loops[-1].append([float(t) for t in tokens])
+            blocks[-1].append([float(t) for t in tokens])
         except ValueError:
-            if number == 1 and not any(_is_number(t) for t in tokens):
+            if not seen_row and not any(_is_number(t) for t in tokens):
+                seen_row = True
                 continue  # a header row
             raise BoundaryError(f"Curve file '{path}': line {number} ({raw.strip()[:40]!r}) is not a row of "
                                 "numbers (comment it out with '#').") from None
-    return [np.array(rows, dtype=np.float64) for rows in loops if rows]
+        seen_row = True
+    blocks = [rows for rows in blocks if rows]
+    if len(blocks) > 1 and not all(_closes(np.array(rows, dtype=np.float64)) for rows in blocks):
+        blocks = [[row for rows in blocks for row in rows]]  # spacing inside one loop, not loops
+    if len(blocks) > 1:
+        log.info("Curve file '%s': %d loops (blank lines separate them).", path, len(blocks))
+    return [np.array(rows, dtype=np.float64) for rows in blocks]
+
+
+def _closes(rows: np.ndarray) -> bool:
+    """Whether a block of rows (M, d) reads as a closed loop: at least 3 vertices, and its closing step (last to
+    first) no longer than twice its median step."""
+    if len(rows) < 3 or rows.ndim != 2:
+        return False
+    steps = np.linalg.norm(np.diff(rows, axis=0), axis=1)
+    return bool(np.linalg.norm(rows[-1] - rows[0]) <= 2 * np.median(steps))
 
 
 def _is_number(token: str) -> bool:
@@ -192,8 +212,9 @@ def _read_obj_polylines(path: Path) -> list[np.ndarray]:
                                 "boundary curve as 'l' elements (a mesh to reconstruct goes to experiment=recon_mesh "
                                 "data.mesh=…).")
         return [v]  # vertices only: one loop in file order
-    _, first, inverse = np.unique(v, axis=0, return_index=True, return_inverse=True)
-    same = first[inverse.reshape(-1)]  # a vertex written twice (one copy per segment) is one vertex
+    # a vertex written once per segment is one vertex (copies within a millionth of the curve's size: printed
+    # with fewer digits, they need not be equal)
+    same = first_copies(v, 1e-6 * max(float(np.ptp(v, axis=0).max()), 1e-300))
     for k, idx in enumerate(lines):
         idx = [i - 1 if i > 0 else len(v) + i for i in idx]
         if not idx or min(idx) < 0 or max(idx) >= len(v):
@@ -204,42 +225,53 @@ def _read_obj_polylines(path: Path) -> list[np.ndarray]:
 
 def _join_segments(lines: list[list[int]], path: Path) -> list[list[int]]:
     """The loops of ``l`` elements as vertex index lists: an element of three or more vertices is a loop (closed
-    implicitly); 2-vertex elements, as many exporters write a curve edge by edge and in either direction, are
-    chained through their shared vertices into loops (each runs the way its first segment does). One sentence for
-    a branching curve (three or more segments at a vertex); a chain with two open ends is closed, with a warning."""
+    implicitly); 2-vertex elements, as exporters write a curve edge by edge and in either direction, are walked
+    through their shared vertices into simple loops (a walk that comes back to a vertex cuts the stretch off as a
+    loop, so loops that touch at a vertex stay apart), each run the way most of its segments are written. One
+    sentence where an odd number (≥ 3) of segments meet at a vertex (a branch); a chain with two open ends is
+    closed, with a warning."""
     loops = [idx for idx in lines if len(idx) != 2]
-    segments = [idx for idx in lines if len(idx) == 2 and idx[0] != idx[1]]
+    segments = [(idx[0], idx[1]) for idx in lines if len(idx) == 2 and idx[0] != idx[1]]
     if not segments:
         return loops
-    neighbours: dict[int, list[int]] = {}
-    for a, b in segments:
-        neighbours.setdefault(a, []).append(b)
-        neighbours.setdefault(b, []).append(a)
-    branching = [u for u, ns in neighbours.items() if len(ns) > 2]
-    if branching:
-        raise BoundaryError(f"Curve file '{path}' branches: {len(neighbours[branching[0]])} 'l' segments meet at "
-                            f"vertex {branching[0] + 1}; a boundary is made of closed loops.")
-    seen: set[int] = set()
-    # chains with an open end first (started from that end), then closed ones
-    starts = [u for u, ns in neighbours.items() if len(ns) == 1] + [a for a, _ in segments]
+    incident: dict[int, list[int]] = {}
+    for e, (a, b) in enumerate(segments):
+        incident.setdefault(a, []).append(e)
+        incident.setdefault(b, []).append(e)
+    branch = next((u for u, es in incident.items() if len(es) % 2 and len(es) > 1), None)
+    if branch is not None:
+        raise BoundaryError(f"Curve file '{path}' branches: {len(incident[branch])} 'l' segments meet at vertex "
+                            f"{branch + 1}; a boundary is made of closed loops.")
+    used = [False] * len(segments)
+
+    def add(walk: list[int], along: list[bool]) -> None:
+        """A loop, turned to run the way most of its segments do (``along``: each step with its segment)."""
+        loops.append(walk if 2 * sum(along) >= len(along) else [walk[0], *walk[:0:-1]])
+
     opened = 0
-    for start in starts:
-        if start in seen:
-            continue
-        chain, prev, cur = [start], None, start
-        seen.add(start)
-        if len(neighbours[start]) == 2:  # a closed loop: leave along the first segment that starts here
-            first = next(b for a, b in segments if a == start)
-            neighbours[start].sort(key=lambda n: n != first)
+    ends = [u for u, es in incident.items() if len(es) == 1]
+    for start in ends + [a for a, _ in segments]:  # open chains from an end, then the closed ones
+        walk, where, along, cur = [start], {start: 0}, [], start
         while True:
-            nxt = [n for n in neighbours[cur] if n != prev and n not in seen]
-            if not nxt:
+            free = [e for e in incident[cur] if not used[e]]
+            if not free:
                 break
-            prev, cur = cur, nxt[0]
-            chain.append(cur)
-            seen.add(cur)
-        opened += len(neighbours[start]) == 1
-        loops.append(chain)
+            e = next((e for e in free if segments[e][0] == cur), free[0])  # along a segment where one leaves
+            used[e] = True
+            along.append(segments[e][0] == cur)
+            cur = segments[e][1] if segments[e][0] == cur else segments[e][0]
+            if cur in where:  # back at a vertex of this walk: the stretch since is a closed loop
+                k = where[cur]
+                add(walk[k:], along[k:])
+                for u in walk[k + 1:]:
+                    del where[u]
+                del walk[k + 1:], along[k:]
+            else:
+                where[cur] = len(walk)
+                walk.append(cur)
+        if len(walk) > 1:  # an open chain
+            opened += 1
+            add(walk, along)
     if opened:
         log.warning("Curve file '%s': %d chain(s) of 'l' segments did not close; each was closed by joining its "
                     "two ends.", path, opened)
@@ -327,8 +359,8 @@ def warn_retraced(loops: list[np.ndarray], source: str) -> None:
         repeated = len(loop) - len(np.unique(loop, axis=0))
         if repeated >= max(len(loop) // 3, 1):
             name = f"{source}" + (f" (loop {i})" if len(loops) > 1 else "")
-            log.warning("Boundary %s passes %d of its vertices twice: is it traced twice, or back along itself? "
-                        "α doubles or cancels the curve where it does.", name, repeated)
+            log.warning("Boundary %s passes %d of its vertices twice (traced twice, or back along itself), so α "
+                        "doubles or cancels the curve there.", name, repeated)
     keys = [frozenset(map(tuple, lp)) for lp in loops]
     for j in range(len(loops)):
         for i in range(j):

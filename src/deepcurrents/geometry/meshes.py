@@ -11,6 +11,7 @@ import numpy as np
 import trimesh
 
 from deepcurrents.errors import UserInputError
+from deepcurrents.geometry.topology import first_copies
 
 log = logging.getLogger(__name__)
 
@@ -47,15 +48,14 @@ def merge_coincident_vertices(vertices: np.ndarray, faces: np.ndarray, name: str
     Vertices at exactly the same coordinates are merged into the first of them, with a warning naming ``name``;
     the kept vertices stay in the file's order, so a mesh without such copies comes back unchanged.
     (V, 3), (F, 3) → (V', 3), (F, 3)."""
-    _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
-    if len(first) == len(vertices):
+    first = first_copies(vertices)
+    kept = first == np.arange(len(vertices))
+    if kept.all():
         return vertices, faces
-    order = np.argsort(first)  # unique rows by first appearance
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
+    rank = np.cumsum(kept) - 1  # new index of each kept vertex, in the file's order
     log.warning("%s: merged %d vertices that repeat another vertex's position (as STL files and texture seams "
-                "store them).", name, len(vertices) - len(first))
-    return vertices[first[order]], rank[inverse.reshape(-1)][faces]
+                "store them).", name, int((~kept).sum()))
+    return vertices[kept], rank[first][faces]
 
 
 def drop_repeated_faces(faces: np.ndarray, name: str) -> np.ndarray:

@@ -7,6 +7,27 @@ from __future__ import annotations
 import numpy as np
 
 
+def first_copies(points: np.ndarray, tolerance: float = 0.0) -> np.ndarray:
+    """For each point, the index of the first point at its position: exactly (``tolerance`` 0), or within
+    ``tolerance`` (points closer than it, chained, are one). Files store a vertex once per triangle (STL) or per
+    edge (OBJ polylines written edge by edge); this joins the copies. (N, d) → (N,) int64, ≤ its own index."""
+    n = len(points)
+    if tolerance > 0:
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        pairs = cKDTree(points).query_pairs(tolerance, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+        _, labels = connected_components(graph, directed=False)
+    else:
+        _, labels = np.unique(points, axis=0, return_inverse=True)
+        labels = labels.reshape(-1)
+    first = np.full(labels.max() + 1 if n else 0, n, dtype=np.int64)
+    np.minimum.at(first, labels, np.arange(n))
+    return first[labels]
+
+
 def border_edges(faces: np.ndarray) -> np.ndarray:
     """The directed edges that belong to one face only, each following its face's orientation.
 

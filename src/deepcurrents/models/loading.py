@@ -35,8 +35,8 @@ def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
     if not path.exists():
         raise CheckpointError(f"ckpt_path='{ckpt_path}' does not exist.")
     if path.is_dir():
-        last = path / "checkpoints" / "last.ckpt"
-        hint = f"; this run's last one is ckpt_path='{last}'" if last.is_file() else \
+        last = next((p for p in (path / "checkpoints" / "last.ckpt", path / "last.ckpt") if p.is_file()), None)
+        hint = f"; this run's last one is ckpt_path='{last}'" if last is not None else \
             " (a run keeps its checkpoints in checkpoints/last.ckpt)"
         raise CheckpointError(f"ckpt_path='{ckpt_path}' is a directory, not a checkpoint file{hint}.")
     if not path.is_file():
