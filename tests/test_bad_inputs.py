@@ -28,7 +28,7 @@ from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
 from deepcurrents.cli.generate import GenerateConfig, generate
 from deepcurrents.cli.interpolate import InterpolateConfig, interpolate
 from deepcurrents.cli.render import RenderConfig, render_checkpoint
-from deepcurrents.errors import UserInputError
+from deepcurrents.errors import ConfigError, UserInputError
 from deepcurrents.experiments.runner import train
 
 TINY = [*QUIET_CPU, *TINY_NET, *TINY_EVAL, "trainer.max_steps=2"]
@@ -180,6 +180,10 @@ TRAIN_CASES = [
     ("level blend negative", overrides("experiment=latent_hands", "evaluation.mesh.level_blend=-0.1"),
      r"evaluation\.mesh\.level_blend"),
     ("sampling kind unknown", overrides("experiment=minimal_trefoil", "data.sampling.kind=lucky"), "sampling"),
+    # trained to the end, then an empty mesh blamed on |ω| (a cosine cannot be ≥ 3)
+    ("mesh alignment beyond a cosine", overrides("experiment=minimal_trefoil", "evaluation.mesh.min_alignment=3"),
+     r"evaluation\.mesh\.min_alignment=3 must be a number in \[-1, 1\]"),
+    ("family list empty", overrides("experiment=latent_hands", "data.path=[]"), r"data\.path=\[\] lists no meshes"),
     ("seed not a number", overrides("experiment=minimal_trefoil", "seed=abc"), "seed"),
     ("grid resolution two", overrides("experiment=minimal_grid", "model.grid.resolution=2"), "resolution"),
     ("trainer devices zero", overrides("experiment=minimal_trefoil", "trainer.devices=0"), r"trainer\.devices=0"),
@@ -325,6 +329,15 @@ APP_CASES = [
      lambda tmp, ck: {"ckpt_path": str(ck), "curve": str(tmp / "rim.txt")}, "rim.txt"),
     ("generate latent out of range", generate, GenerateConfig, "family",
      lambda tmp, ck: {"ckpt_path": str(ck), "curve": "circle", "latent": 9}, "latent"),
+    ("generate out_dir a file", generate, GenerateConfig, "family",  # a FileExistsError traceback before
+     lambda tmp, ck: {"ckpt_path": str(ck), "curve": "circle", "out_dir": str(write(tmp / "taken", "x"))},
+     r"out_dir='.*taken' cannot be created"),
+    ("interpolate out_dir a file", interpolate, InterpolateConfig, "family",
+     lambda tmp, ck: {"ckpt_path": str(ck), "out_dir": str(write(tmp / "taken", "x"))},
+     r"out_dir='.*taken' cannot be created"),
+    ("generate curve a mesh", generate, GenerateConfig, "family",  # named data.curve, not the app's curve=
+     lambda tmp, ck: {"ckpt_path": str(ck), "curve": str(write(tmp / "cap.ply", "ply"))},
+     r"^curve='.*cap\.ply' is neither a known curve"),
     ("generate name with folders", generate, GenerateConfig, "family",  # wrote outside out_dir, or failed midway
      lambda tmp, ck: {"ckpt_path": str(ck), "curve": "circle", "name": "../../elsewhere"},
      r"name='\.\./\.\./elsewhere' must be a plain file name"),
@@ -435,3 +448,16 @@ def test_the_latent_fit_settings_are_checked_before_training_in_one_sentence(key
     settings = {"steps": 10, "lr": 1e-3, "num_samples": 64, "num_surface_samples": 64, "prior_weight": 0.0}
     with pytest.raises(ConfigError, match=rf"^model\.latent_fit\.{key}={value} must be"):
         check_latent_fit(**{**settings, key: value})
+
+
+def test_an_optuna_objective_the_run_does_not_write_is_one_sentence():
+    """objective=ucd on a minimal surface (or a typo) was +inf in every trial: the search 'succeeded' with
+    meaningless best parameters. Now one sentence listing what the run writes; a metric written empty (an empty
+    mesh's ucd) is still +inf, a failed trial."""
+    from deepcurrents.cli.train import objective_value
+
+    metrics = {"mass_area": 0.75, "mesh_area": 0.74, "steps": 10, "ucd": None, "name": "x"}
+    with pytest.raises(ConfigError, match=r"objective='mass_ara' is not a metric this run writes; it writes "
+                                          r"mass_area, mesh_area, steps\."):
+        objective_value(metrics, "mass_ara")
+    assert objective_value(metrics, "ucd") == float("inf") and objective_value(metrics, "mass_area") == 0.75

@@ -22,9 +22,8 @@ from deepcurrents.models.loading import load_module, resolve_device
 
 def app_out_dir(cfg: DictConfig, name: str) -> Path:
     """``cfg.out_dir``, else ``<folder named after the checkpoint>/<name>`` beside it (as the other apps)."""
-    path = Path(cfg.out_dir) if cfg.out_dir else output_dir(cfg.ckpt_path, None) / name
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    # output_dir makes the folder or says in one sentence why it cannot
+    return output_dir(cfg.ckpt_path, cfg.out_dir or str(output_dir(cfg.ckpt_path, None) / name))
 
 
 def load_for_app(cfg: DictConfig) -> AutodecoderModule:

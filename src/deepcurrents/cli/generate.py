@@ -77,8 +77,8 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
     module = load_for_app(cfg)
     k = module.check_shape_index(cfg.latent, "latent")
     source = f"curve='{cfg.curve}'"
-    loops = prepare_loops(load_boundary(str(cfg.curve), scale=float(cfg.curve_scale)).loops, module.shape_loops(k),
-                          source)
+    boundary = load_boundary(str(cfg.curve), scale=float(cfg.curve_scale), setting="curve")
+    loops = prepare_loops(boundary.loops, module.shape_loops(k), source)
     name = given or f"{Path(str(cfg.curve)).stem}_latent{k}"
     out_dir = app_out_dir(cfg, "generated")
     rec = mesh_and_measure(module, module.latent(k), loops, [k], out_dir, name)

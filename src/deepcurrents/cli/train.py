@@ -9,6 +9,7 @@ import hydra
 from omegaconf import DictConfig
 
 from deepcurrents.cli.common import exit_on_user_error
+from deepcurrents.errors import ConfigError
 from deepcurrents.experiments.runner import train
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[3] / "conf")
@@ -22,9 +23,19 @@ def run_cli(cfg: DictConfig) -> float | None:
     metrics = exit_on_user_error(train, cfg)
     objective = cfg.get("objective")
     if metrics is not None and objective:
-        value = metrics.get(objective)
-        return float(value) if value is not None else float("inf")
+        return exit_on_user_error(objective_value, metrics, str(objective))
     return None
+
+
+def objective_value(metrics: dict, objective: str) -> float:
+    """The metric an Optuna sweep minimises; +inf where the run wrote it empty (an empty mesh's ucd), one sentence
+    where the run writes no such metric (a typo, or ucd of a minimal surface): a search over inf finds nothing."""
+    if objective not in metrics:
+        written = sorted(k for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool))
+        raise ConfigError(f"objective={objective!r} is not a metric this run writes; it writes "
+                          f"{', '.join(written)}.")
+    value = metrics[objective]
+    return float(value) if value is not None else float("inf")
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")

@@ -50,7 +50,7 @@ from deepcurrents.geometry.topology import border_edges
 
 log = logging.getLogger(__name__)
 
-MESH_SUFFIXES = (".ply", ".obj", ".off")
+MESH_SUFFIXES = (".ply", ".obj", ".off", ".stl")
 
 
 class FamilyError(UserInputError):
@@ -89,11 +89,13 @@ def family_files(path: str | Path | Sequence[str], max_meshes: int | None = None
         if root.is_dir():
             files = sorted(p for p in root.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
             if not files:
-                raise FamilyError(f"data.path='{root}' contains no .ply, .obj or .off meshes.")
+                raise FamilyError(f"data.path='{root}' contains no .ply, .obj, .off or .stl meshes.")
         else:
             files = [root]
     else:
         files = [Path(p) for p in path]
+        if not files:
+            raise FamilyError("data.path=[] lists no meshes; give a folder of meshes or a list of mesh files.")
         for p in files:
             if not p.is_file():
                 raise FamilyError(f"Family mesh '{p}' does not exist or is not a file.")

@@ -108,6 +108,12 @@ def validate_config(cfg: DictConfig) -> None:
                 "evaluation.sharpened.kappa", "evaluation.sharpened.samples", "evaluation.curve.delta",
                 "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
+    for key, lo, hi in (("evaluation.mesh.min_alignment", -1.0, 1.0), ("evaluation.curve.min_alignment", -1.0, 1.0),
+                        ("evaluation.mesh.min_component", 0.0, 1.0)):  # a cosine; a fraction of the area
+        value = OmegaConf.select(cfg, key)
+        if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                      and lo <= value <= hi):
+            raise ConfigError(f"{key}={value!r} must be a number in [{lo:g}, {hi:g}].")
     refine_mesh = OmegaConf.select(cfg, "evaluation.mass_refine_mesh")
     if refine_mesh not in (None, True, False):
         raise ConfigError(f"evaluation.mass_refine_mesh={refine_mesh!r} must be true or false.")

@@ -310,7 +310,8 @@ class Boundary:
         return polyline_length(self.loops)
 
 
-def validate_loops(loops: list[np.ndarray], source: str, domain: float = 1.0) -> list[np.ndarray]:
+def validate_loops(loops: list[np.ndarray], source: str, domain: float = 1.0,
+                   rescale: str = "let data.normalize=auto or true centre and scale it") -> list[np.ndarray]:
     """Checks and cleans closed loops; raises BoundaryError with one sentence naming ``source``.
 
     Drops a repeated closing vertex and consecutive duplicate vertices (with a warning); rejects NaN/inf,
@@ -342,8 +343,7 @@ def validate_loops(loops: list[np.ndarray], source: str, domain: float = 1.0) ->
         if np.abs(loop).max() >= domain:
             raise BoundaryError(
                 f"Boundary {name} has vertices outside the domain [-{domain:g}, {domain:g}]^3 "
-                f"(max |coordinate| = {np.abs(loop).max():.3g}); rescale it, or let data.normalize=auto or true "
-                "centre and scale it."
+                f"(max |coordinate| = {np.abs(loop).max():.3g}); rescale it, or {rescale}."
             )
         clean.append(loop)
     if not clean:
@@ -415,7 +415,8 @@ def box_normalisation(points: np.ndarray, mode: bool | str, half_extent: float, 
 
 
 def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1.0,
-                  normalize: bool | str = False, max_vertices: int | None = None) -> Boundary:
+                  normalize: bool | str = False, max_vertices: int | None = None,
+                  setting: str = "data.curve") -> Boundary:
     """A boundary from a name in NAMED_CURVES (sampled with ``n`` vertices per loop) or a curve file path.
 
     ``scale`` multiplies the coordinates; the result is "the input" that outputs are reported in.
@@ -423,7 +424,8 @@ def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1
     :func:`box_normalisation` (auto: only beyond SAFE_EXTENT or below SMALL_EXTENT); the Boundary keeps the map
     back.
     ``max_vertices``: loops with more vertices are resampled by arc length to that many, corners kept
-    (:func:`deepcurrents.geometry.polyline.resample_loop`), with a warning; None keeps every vertex."""
+    (:func:`deepcurrents.geometry.polyline.resample_loop`), with a warning; None keeps every vertex.
+    ``setting``: the name the caller's user gave the curve under (``data.curve``, an app's ``curve``)."""
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
         raise BoundaryError(f"The curve scale {scale!r} must be a positive number.")
     key = str(spec).strip()
@@ -433,8 +435,8 @@ def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1
     else:
         if not any(key.lower().endswith(ext) for ext in (".obj", ".txt", ".npy", ".xyz", ".csv")):
             raise BoundaryError(
-                f"data.curve='{key}' is neither a known curve ({', '.join(sorted(NAMED_CURVES))}) nor a "
-                "curve file (.obj, .txt, .npy)."
+                f"{setting}='{key}' is neither a known curve ({', '.join(sorted(NAMED_CURVES))}) nor a "
+                "curve file (.obj, .txt, .csv, .npy)."
             )
         loops = read_curve_file(key)
         name = Path(key).stem
@@ -447,7 +449,9 @@ def load_boundary(spec: str, n: int = 100, scale: float = 1.0, domain: float = 1
     factor, offset = box_normalisation(np.concatenate(loops), normalize, NORMALIZED_EXTENT, SAFE_EXTENT,
                                        f"Curve '{key}'", small_extent=SMALL_EXTENT)
     loops = [(lp - offset) / factor for lp in loops]
-    return Boundary(validate_loops(loops, f"'{key}'", domain=domain), name, factor, offset)
+    rescale = ("let data.normalize=auto or true centre and scale it" if setting == "data.curve" else
+               f"give {setting}_scale=… to scale it")
+    return Boundary(validate_loops(loops, f"'{key}'", domain=domain, rescale=rescale), name, factor, offset)
 
 
 def _resample(loop: np.ndarray, n: int, name: str) -> np.ndarray:
