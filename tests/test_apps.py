@@ -244,3 +244,15 @@ def test_evaluate_draws_the_mass_as_the_run_did_with_the_mesh_cells_refined(tmp_
                                       out_dir=str(tmp_path / "own"), samples=2000))
     assert own["loss"] == pytest.approx(trained["loss"], rel=1e-9)
     assert trained["mass_evaluations"] > trained["mass_samples"]  # refined cells drew sub-samples
+
+
+def test_apps_on_a_family_shape_write_beside_the_checkpoint_under_that_shape(tmp_path):
+    """extract/render/evaluate with shape=1 and then shape=2 wrote the same files (each run replaced the other's,
+    and no file said which shape it held): the default folder now ends in shape<i>; an out_dir is used as given."""
+    from deepcurrents.cli.common import output_dir
+
+    ckpt = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    assert output_dir(str(ckpt), None) == tmp_path / "run" / "checkpoints" / "last"
+    assert output_dir(str(ckpt), None, shape=2) == tmp_path / "run" / "checkpoints" / "last" / "shape2"
+    assert output_dir(str(ckpt), str(tmp_path / "mine"), shape=2) == tmp_path / "mine"
+    assert (tmp_path / "run" / "checkpoints" / "last" / "shape2").is_dir()

@@ -37,10 +37,13 @@ def register_app(name: str, schema: type, doc: str | None = None) -> None:
     })
 
 
-def output_dir(ckpt_path: str, out_dir: str | None) -> Path:
+def output_dir(ckpt_path: str, out_dir: str | None, shape: int | None = None) -> Path:
     """``out_dir`` if given, else a folder named after the checkpoint beside it
-    (``run/checkpoints/last.ckpt`` → ``run/checkpoints/last/``)."""
+    (``run/checkpoints/last.ckpt`` → ``run/checkpoints/last/``), and within it ``shape<i>/`` for one shape of a
+    family (``shape=i``), so that the apps run on several shapes do not overwrite each other's files."""
     path = Path(out_dir) if out_dir else Path(ckpt_path).expanduser().with_suffix("")
+    if not out_dir and shape is not None:
+        path = path / f"shape{shape}"
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:  # a file in the way, a read-only disk, no permission

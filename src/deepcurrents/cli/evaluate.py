@@ -72,7 +72,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     device = resolve_device(cfg.device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
-    out = output_dir(cfg.ckpt_path, cfg.out_dir)
+    out = output_dir(cfg.ckpt_path, cfg.out_dir, cfg.shape)
 
     # unset sizes and seed from the run's own evaluation settings, so `loss` matches its metrics.json
     evaluation = run_evaluation(module)
@@ -100,6 +100,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     name = "area" if current.dim == 3 else "length"
     metrics: dict = {
         "ckpt_path": str(cfg.ckpt_path),
+        **({} if cfg.shape is None else {"shape": int(cfg.shape)}),
         "steps": int(getattr(module, "loaded_step", 0)),
         "loss": mass,
         f"mass_{name}": mass * scale,

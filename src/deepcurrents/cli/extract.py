@@ -75,7 +75,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     device = resolve_device(cfg.device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
-    out = output_dir(cfg.ckpt_path, cfg.out_dir)  # before meshing: an unwritable folder is said at once
+    out = output_dir(cfg.ckpt_path, cfg.out_dir, cfg.shape)  # before meshing: an unwritable folder is said at once
     if current.dim == 2:  # a 2D current's "surface" is a curve: its polylines, like the run's curve.npz
         return extract_curve(module, current, cfg, out)
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
@@ -89,6 +89,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     path = out / f"{stem}.{fmt}"
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     summary = {"mesh": str(path), "resolution": int(cfg.resolution), **mesh_summary(result, loops)}
+    if cfg.shape is not None:
+        summary["shape"] = int(cfg.shape)
     # a curve or target that data.normalize moved into the box: the mesh and its numbers in the file's coordinates,
     # as the run's own mesh.ply
     frame = file_frame(module)

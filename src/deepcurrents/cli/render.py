@@ -137,7 +137,7 @@ def render_checkpoint(cfg: DictConfig) -> list:
     sizes = _sizes(cfg, device)
     module = load_module(cfg.ckpt_path, map_location=device)
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
-    out = output_dir(cfg.ckpt_path, cfg.out_dir)
+    out = output_dir(cfg.ckpt_path, cfg.out_dir, cfg.shape)
     written = []
     if current.dim == 2:
         if cfg.turntable or cfg.mesh:
