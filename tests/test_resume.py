@@ -299,3 +299,21 @@ def test_each_batch_is_a_function_of_seed_rank_and_step_whatever_the_workers():
     assert not torch.equal(serial[0], serial[1])
     other_rank = next(iter(AmbientSamples(3, 16, seed=7, rank=0)))["x"]
     assert not torch.equal(serial[0], other_rank)
+
+
+def test_resume_compares_data_files_not_how_they_were_written(tmp_path):
+    """data.path written with a trailing slash, through a symlink, relative, or as the list of the folder's meshes
+    names the same files: resuming with any of them was refused ('was trained with data.path=…/fam, but this run
+    has …/fam/'). A folder with other files, or a named curve against a file, still differs."""
+    from deepcurrents.models.loading import _files, _same
+
+    fam = tmp_path / "fam"
+    fam.mkdir()
+    for name in ("000.ply", "001.obj", "notes.txt"):
+        (fam / name).write_text("x")
+    (tmp_path / "link").symlink_to(fam)
+    meshes = [str(fam / "000.ply"), str(fam / "001.obj")]
+    ways = [str(fam), str(fam) + "/", str(tmp_path / "link"), meshes, list(reversed(meshes))[::-1]]
+    assert all(_same(_files(ways[0]), _files(w)) for w in ways)
+    assert not _same(_files(str(fam)), _files([meshes[0]]))
+    assert _files("trefoil") == "trefoil" and _files(None) is None

@@ -158,6 +158,25 @@ PROBLEM_KEYS = ("_target_", "dim", "curve", "curve_vertices", "curve_scale", "po
                 "category", "source", "index", "path", "max_meshes", "held_out")
 
 
+FILE_KEYS = ("curve", "points", "mesh", "path")  # compared as the files they name, not as strings
+
+
+def _files(value: Any) -> Any:
+    """The files a data setting names, resolved (a trailing slash, a symlink, a relative path, or a folder given as
+    the list of its meshes name the same files); other values (a named curve, null) as they are."""
+    from deepcurrents.data.family import MESH_SUFFIXES
+
+    names = [value] if isinstance(value, str) else value if isinstance(value, (list, tuple)) else None
+    if not names or not all(isinstance(n, str) and Path(n).expanduser().exists() for n in names):
+        return value
+    files = []
+    for name in names:
+        path = Path(name).expanduser().resolve()
+        files += sorted(str(p) for p in path.iterdir() if p.suffix.lower() in MESH_SUFFIXES) if path.is_dir() \
+            else [str(path)]
+    return files
+
+
 def _same(a: Any, b: Any) -> bool:
     """Nested plain data (and tensors) equal up to float rounding (a boundary read back from a file)."""
     if isinstance(a, dict) and isinstance(b, dict):
@@ -188,7 +207,8 @@ def check_resumable(ckpt_path: str | Path, module: DeepCurrentsModule) -> dict[s
     own_cfg = module.run_config or {}
     saved_data, own_data = saved_cfg.get("data") or {}, own_cfg.get("data") or {}
     for key in PROBLEM_KEYS:
-        if key in saved_data and key in own_data and not _same(saved_data[key], own_data[key]):
+        if key in saved_data and key in own_data and not _same(*(_files(d[key]) if key in FILE_KEYS else d[key]
+                                                                 for d in (saved_data, own_data))):
             raise CheckpointError(
                 f"ckpt_path='{ckpt_path}' was trained with data.{key}={saved_data[key]!r}, but this run has "
                 f"data.{key}={own_data[key]!r}; resume with the data it was trained on."
