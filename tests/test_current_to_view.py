@@ -46,6 +46,9 @@ def test_single_current_and_family_members():
 def test_what_cannot_be_viewed_says_why():
     with pytest.raises(ValueError, match="shape=1 was given, but this Single holds a single current"):
         current_to_view(Single(), 1)
+    with pytest.raises(CheckpointError, match=r"shape=1 picks one shape of a family, but ckpt_path='s\.ckpt' holds "
+                                              r"a single current; leave shape unset\."):
+        viewable_current(Single(), "s.ckpt", 1)
     with pytest.raises(ConfigError, match="shape=5 is not a training shape"):
         viewable_current(Family(), "f.ckpt", 5)  # the model's own sentence, not wrapped
     with pytest.raises(CheckpointError, match="ckpt_path='x.ckpt' has no current to look at: a Module has neither"):

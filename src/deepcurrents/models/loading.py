@@ -270,6 +270,9 @@ def current_to_view(module, shape: int | None = None):
 
 def viewable_current(module: torch.nn.Module, ckpt_path: str | Path = "", shape: int | None = None):
     """The current an app looks at (:func:`current_to_view`), or CheckpointError saying why not."""
+    if shape is not None and getattr(module, "current", None) is not None:
+        raise CheckpointError(f"shape={shape} picks one shape of a family, but ckpt_path='{ckpt_path}' holds a "
+                              "single current; leave shape unset.")
     try:
         return current_to_view(module, shape)
     except ValueError as err:
