@@ -184,6 +184,8 @@ TRAIN_CASES = [
     ("mesh alignment beyond a cosine", overrides("experiment=minimal_trefoil", "evaluation.mesh.min_alignment=3"),
      r"evaluation\.mesh\.min_alignment=3 must be a number in \[-1, 1\]"),
     ("family list empty", overrides("experiment=latent_hands", "data.path=[]"), r"data\.path=\[\] lists no meshes"),
+    ("log interval zero", overrides("experiment=minimal_trefoil", "trainer.log_every_n_steps=0"),
+     r"trainer\.log_every_n_steps=0 must be"),
     ("seed not a number", overrides("experiment=minimal_trefoil", "seed=abc"), "seed"),
     ("grid resolution two", overrides("experiment=minimal_grid", "model.grid.resolution=2"), "resolution"),
     ("trainer devices zero", overrides("experiment=minimal_trefoil", "trainer.devices=0"), r"trainer\.devices=0"),

@@ -103,6 +103,7 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "evaluation.mesh.strip_rows")
     _positive_int(cfg, "evaluation.curve.resolution", 8)
     _positive_int(cfg, "callbacks.model_checkpoint.every_n_train_steps")
+    _positive_int(cfg, "trainer.log_every_n_steps")  # 0 silently turned the training logs off
     for key in ("evaluation.mass_rel_stderr", "evaluation.mass_tube_radius", "evaluation.mesh.delta",
                 "evaluation.mesh.boundary_tube", "evaluation.mesh.padding", "evaluation.mesh.level_blend",
                 "evaluation.sharpened.kappa", "evaluation.sharpened.samples", "evaluation.curve.delta",
