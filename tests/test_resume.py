@@ -175,6 +175,8 @@ def test_resume_with_another_model_boundary_or_size_is_one_sentence(tmp_path, tr
     refused(tmp_path, [ckpt, "data.curve=hopf"], "data.curve='trefoil'.*data.curve='hopf'")
     refused(tmp_path, [ckpt, "data.curve_vertices=60"], "data.curve_vertices=100")
     refused(tmp_path, [ckpt, "model.net.width=8"], "weights do not fit")
+    # a recipe that adds a part (the sharpening's buffers) was blamed on the network's sizes
+    refused(tmp_path, [ckpt, "recipe=sharp"], r"has no 'current\.sharpening.*a recipe= or model\.\* option")
     # the same setting, another file content: the boundary itself is compared
     curve = tmp_path / "rim.txt"
     t = torch.linspace(0, 2 * torch.pi, 41)[:-1]

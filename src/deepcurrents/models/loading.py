@@ -232,7 +232,12 @@ def check_resumable(ckpt_path: str | Path, module: DeepCurrentsModule) -> dict[s
             )
     for name, tensor in own_sd.items():
         other = saved_sd.get(name)
-        if not isinstance(other, torch.Tensor) or other.shape != tensor.shape:
+        if not isinstance(other, torch.Tensor):  # a part this run's settings add (a recipe's, a model.* option's)
+            raise CheckpointError(
+                f"ckpt_path='{ckpt_path}' has no '{name}', which this run's settings add (a recipe= or model.* "
+                "option it was not trained with); resume with the settings it was trained with."
+            )
+        if other.shape != tensor.shape:
             raise CheckpointError(
                 f"ckpt_path='{ckpt_path}': its weights do not fit the {type(module).__name__} this run's config "
                 f"builds ('{name}' differs: model.net / model.rff / model.* sizes are not the ones it was "
