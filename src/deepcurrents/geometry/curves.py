@@ -7,6 +7,7 @@ orientation; the last vertex connects to the first. A 2D boundary is a set of si
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,7 +16,7 @@ import torch
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.geometry.polyline import resample_loop
-from deepcurrents.geometry.topology import first_copies
+from deepcurrents.geometry.topology import edge_walks, first_copies
 
 log = logging.getLogger(__name__)
 
@@ -226,52 +227,22 @@ def _read_obj_polylines(path: Path) -> list[np.ndarray]:
 def _join_segments(lines: list[list[int]], path: Path) -> list[list[int]]:
     """The loops of ``l`` elements as vertex index lists: an element of three or more vertices is a loop (closed
     implicitly); 2-vertex elements, as exporters write a curve edge by edge and in either direction, are walked
-    through their shared vertices into simple loops (a walk that comes back to a vertex cuts the stretch off as a
-    loop, so loops that touch at a vertex stay apart), each run the way most of its segments are written. One
-    sentence where an odd number (≥ 3) of segments meet at a vertex (a branch); a chain with two open ends is
-    closed, with a warning."""
+    through their shared vertices into simple loops (``topology.edge_walks``: loops that touch at a vertex stay
+    apart), each run the way most of its segments are written. One sentence where an odd number (≥ 3) of segments
+    meet at a vertex (a branch); a chain with two open ends is closed, with a warning."""
     loops = [idx for idx in lines if len(idx) != 2]
     segments = [(idx[0], idx[1]) for idx in lines if len(idx) == 2 and idx[0] != idx[1]]
     if not segments:
         return loops
-    incident: dict[int, list[int]] = {}
-    for e, (a, b) in enumerate(segments):
-        incident.setdefault(a, []).append(e)
-        incident.setdefault(b, []).append(e)
-    branch = next((u for u, es in incident.items() if len(es) % 2 and len(es) > 1), None)
+    degree = Counter(u for segment in segments for u in segment)
+    branch = next((u for u, n in degree.items() if n % 2 and n > 1), None)
     if branch is not None:
-        raise BoundaryError(f"Curve file '{path}' branches: {len(incident[branch])} 'l' segments meet at vertex "
+        raise BoundaryError(f"Curve file '{path}' branches: {degree[branch]} 'l' segments meet at vertex "
                             f"{branch + 1}; a boundary is made of closed loops.")
-    used = [False] * len(segments)
-
-    def add(walk: list[int], along: list[bool]) -> None:
-        """A loop, turned to run the way most of its segments do (``along``: each step with its segment)."""
-        loops.append(walk if 2 * sum(along) >= len(along) else [walk[0], *walk[:0:-1]])
-
     opened = 0
-    ends = [u for u, es in incident.items() if len(es) == 1]
-    for start in ends + [a for a, _ in segments]:  # open chains from an end, then the closed ones
-        walk, where, along, cur = [start], {start: 0}, [], start
-        while True:
-            free = [e for e in incident[cur] if not used[e]]
-            if not free:
-                break
-            e = next((e for e in free if segments[e][0] == cur), free[0])  # along a segment where one leaves
-            used[e] = True
-            along.append(segments[e][0] == cur)
-            cur = segments[e][1] if segments[e][0] == cur else segments[e][0]
-            if cur in where:  # back at a vertex of this walk: the stretch since is a closed loop
-                k = where[cur]
-                add(walk[k:], along[k:])
-                for u in walk[k + 1:]:
-                    del where[u]
-                del walk[k + 1:], along[k:]
-            else:
-                where[cur] = len(walk)
-                walk.append(cur)
-        if len(walk) > 1:  # an open chain
-            opened += 1
-            add(walk, along)
+    for walk, along, closed in edge_walks(segments, directed=False):
+        opened += not closed
+        loops.append(walk if 2 * sum(along) >= len(along) else [walk[0], *walk[:0:-1]])  # most segments' way
     if opened:
         log.warning("Curve file '%s': %d chain(s) of 'l' segments did not close; each was closed by joining its "
                     "two ends.", path, opened)

@@ -39,36 +39,50 @@ def border_edges(faces: np.ndarray) -> np.ndarray:
 
 
 def border_loops(faces: np.ndarray) -> list[np.ndarray]:
-    """Border loops of a triangle mesh as vertex index arrays (M_i,), each following its faces' orientation.
+    """Border loops of a triangle mesh as vertex index arrays (M_i,), each following its faces' orientation: the
+    closed walks of the border edges (``edge_walks``; loops that touch at a vertex stay apart, whatever the faces'
+    order). Border edges that close no loop (inconsistently oriented faces) and loops of fewer than 3 vertices are
+    left out."""
+    walks = edge_walks(border_edges(faces).tolist(), directed=True)
+    return [np.asarray(walk) for walk, _, closed in walks if closed and len(walk) >= 3]
 
-    Walks edges, not vertices: where loops touch at a vertex (two border edges leave it), each edge is still used
-    once, and whenever the walk comes back to a vertex it has passed, the stretch since then is cut off as a loop
-    of its own, so every loop is simple whatever the faces' order. Border edges that close no loop
-    (inconsistently oriented faces) and loops of fewer than 3 vertices are left out.
-    """
-    edges = border_edges(faces)
-    outgoing: dict[int, list[int]] = {}
-    for e, a in enumerate(edges[:, 0].tolist()):
-        outgoing.setdefault(a, []).append(e)
-    heads = edges[:, 1].tolist()
-    used = np.zeros(len(edges), dtype=bool)
-    loops = []
-    for first in range(len(edges)):
-        if used[first]:
-            continue
-        walk, where, e = [int(edges[first, 0])], {int(edges[first, 0]): 0}, first
-        while e is not None:
+
+def edge_walks(edges: list[tuple[int, int]] | list[list[int]], directed: bool
+               ) -> list[tuple[list[int], list[bool], bool]]:
+    """Splits edges (a, b) into simple closed loops and open chains, each edge used once. → (vertices, along,
+    closed) per walk, ``along[i]`` whether step i runs along its edge's own direction a → b.
+
+    ``directed``: steps only go along edges (a mesh's border); otherwise either way, along an edge where one leaves
+    (curve segments written in either direction), and walks start from the open ends first. Whenever a walk comes
+    back to a vertex it has passed, the stretch since then is cut off as a closed loop, so loops that touch at a
+    vertex stay apart; what remains when a walk cannot go on is an open chain (closed False)."""
+    incident: dict[int, list[int]] = {}
+    for e, (a, b) in enumerate(edges):
+        incident.setdefault(a, []).append(e)
+        if not directed:
+            incident.setdefault(b, []).append(e)
+    used = [False] * len(edges)
+    walks = []
+    ends = [] if directed else [u for u, es in incident.items() if len(es) == 1]
+    for start in ends + [a for a, _ in edges]:
+        walk, where, along, cur = [start], {start: 0}, [], start
+        while True:
+            free = [e for e in incident.get(cur, ()) if not used[e]]
+            if not free:
+                break
+            e = next((e for e in free if edges[e][0] == cur), free[0])
             used[e] = True
-            v = heads[e]
-            if v in where:  # a closed stretch: from v's first visit back to v
-                k = where[v]
-                if len(walk) - k >= 3:
-                    loops.append(np.asarray(walk[k:]))
+            along.append(edges[e][0] == cur)
+            cur = edges[e][1] if edges[e][0] == cur else edges[e][0]
+            if cur in where:  # back at a vertex of this walk: the stretch since is a closed loop
+                k = where[cur]
+                walks.append((walk[k:], along[k:], True))
                 for u in walk[k + 1:]:
                     del where[u]
-                del walk[k + 1:]
+                del walk[k + 1:], along[k:]
             else:
-                where[v] = len(walk)
-                walk.append(v)
-            e = next((k for k in outgoing.get(walk[-1], ()) if not used[k]), None)
-    return loops
+                where[cur] = len(walk)
+                walk.append(cur)
+        if len(walk) > 1:
+            walks.append((walk, along, False))
+    return walks
