@@ -123,10 +123,9 @@ class ClosestPointModule(DeepCurrentsModule):
         metrics = {"ucd": ucd, "ucd_reverse": reverse, "chamfer": 0.5 * (ucd + reverse),
                    "loss": float(((pred_y - y) ** 2).sum(1).mean()), **self.run_metrics(),
                    "target": self.target_source}
-        scale = float(self.target_scale)
-        if scale != 1.0 or float(self.target_offset.abs().max()) > 0:  # normalised (data.normalize), if only moved:
-            # the UCD in the target file's units as well, as ReconstructionModule gives it
-            metrics["ucd_input_units"] = ucd * scale
-            metrics["ucd_reverse_input_units"] = reverse * scale
+        frame = TargetGeometry.frame(self)
+        if frame is not None:  # a normalised target: the UCD in the file's units as well, as ReconstructionModule
+            metrics["ucd_input_units"] = ucd * frame[0]
+            metrics["ucd_reverse_input_units"] = reverse * frame[0]
         trimesh.PointCloud(TargetGeometry.to_input(self, pred)).export(out_dir / "points.ply")
         return self.write_metrics(out_dir, metrics)

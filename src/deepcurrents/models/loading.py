@@ -20,6 +20,7 @@ import torch
 from deepcurrents.errors import UserInputError
 from deepcurrents.models.base import CHECKPOINT_KEY, DeepCurrentsModule
 from deepcurrents.models.current_module import input_frame
+from deepcurrents.models.reconstruction import TargetGeometry
 
 
 class CheckpointError(UserInputError):
@@ -98,11 +99,10 @@ def file_frame(module) -> tuple[float, np.ndarray] | None:
     """(scale, offset) from the model's box to the coordinates of the files the run was given, input = model ·
     scale + offset: a reconstruction's normalised target, else a normalised curve's (the frame of the run's own
     mesh.ply); None where the two coincide."""
-    scale, offset = getattr(module, "target_scale", None), getattr(module, "target_offset", None)
-    if scale is not None and offset is not None:
-        scale, offset = float(scale), offset.detach().cpu().double().numpy()
-        if scale != 1.0 or np.abs(offset).max() > 0:
-            return scale, offset
+    if getattr(module, "target_scale", None) is not None:
+        frame = TargetGeometry.frame(module)
+        if frame is not None:
+            return frame
     return input_frame((getattr(module, "hparams", None) or {}).get("boundary") or {})
 
 
@@ -164,17 +164,15 @@ FILE_KEYS = ("curve", "points", "mesh", "path")  # compared as the files they na
 def _files(value: Any) -> Any:
     """The files a data setting names, resolved (a trailing slash, a symlink, a relative path, or a folder given as
     the list of its meshes name the same files); other values (a named curve, null) as they are."""
-    from deepcurrents.data.family import MESH_SUFFIXES
+    from deepcurrents.data.family import family_files
 
     names = [value] if isinstance(value, str) else value if isinstance(value, (list, tuple)) else None
     if not names or not all(isinstance(n, str) and Path(n).expanduser().exists() for n in names):
         return value
-    files = []
-    for name in names:
-        path = Path(name).expanduser().resolve()
-        files += sorted(str(p) for p in path.iterdir() if p.suffix.lower() in MESH_SUFFIXES) if path.is_dir() \
-            else [str(path)]
-    return files
+    try:  # a folder's meshes as a family reads them
+        return [str(p.expanduser().resolve()) for name in names for p in family_files(name)]
+    except UserInputError:  # a folder without meshes: its own name
+        return [str(Path(n).expanduser().resolve()) for n in names]
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -68,6 +68,13 @@ class TargetGeometry:
         return module.target_a.cpu().numpy()
 
     @staticmethod
+    def frame(module) -> tuple[float, np.ndarray] | None:
+        """(scale, offset) of a target that data.normalize moved, input = model · scale + offset (a shift alone
+        counts); None where the model's frame is the target file's."""
+        scale, offset = float(module.target_scale), module.target_offset.detach().cpu().double().numpy()
+        return (scale, offset) if scale != 1.0 or np.abs(offset).max() > 0 else None
+
+    @staticmethod
     def to_input(module, vertices: np.ndarray) -> np.ndarray:
         return vertices * float(module.target_scale) + module.target_offset.cpu().numpy()
 
@@ -180,12 +187,12 @@ class ReconstructionModule(CurrentModule):
         samples = int(self.evaluation.get("ucd_samples", 100_000))
         seed = int(self.evaluation.get("seed", 12345))
         metrics.update(reconstruction_metrics(self, mesh, samples, seed))
-        scale = float(self.target_scale)
-        moved = scale != 1.0 or float(self.target_offset.abs().max()) > 0
-        if moved and metrics["ucd"] is not None:  # a shift alone too, so every normalised run has the keys
+        frame = TargetGeometry.frame(self)
+        scale = frame[0] if frame is not None else 1.0
+        if frame is not None and metrics["ucd"] is not None:  # a shift alone too: every normalised run has the keys
             metrics["ucd_input_units"] = metrics["ucd"] * scale
             metrics["ucd_reverse_input_units"] = metrics["ucd_reverse"] * scale
-        if moved:
+        if frame is not None:
             # the mesh and Γ in the input's coordinates, so that they compare with the user's file
             trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
                             process=False).export(out_dir / "mesh.ply")
