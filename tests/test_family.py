@@ -523,6 +523,29 @@ def test_missing_folder_and_closed_mesh_are_one_sentence(tmp_path):
         FamilyDataModule(str(tmp_path), meshes_per_batch=0)
 
 
+def test_final_evaluation_says_when_a_shape_meshed_empty(family_dir, tmp_path, monkeypatch, caplog):
+    """An empty mesh has no UCD: the mean is over the other shapes, so the run says so in a warning naming the
+    shape, and metrics.json counts it (the mean alone would flatter the run)."""
+    import logging
+
+    datamodule, module = build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["evaluation.max_shapes=2"]))
+    real = type(module).evaluate_member  # the untrained model meshes empty everywhere (f = 0): stand in for one
+
+    def member(self, z, loops, bounds, target, path, samples, seed):
+        row, mesh = real(self, z, loops, bounds, target, path, samples, seed)
+        if not path.name.startswith("001_"):  # every shape but the second as if it had meshed
+            row = {**row, "ucd": 0.01, "ucd_reverse": 0.02, "boundary_error": 0.001}
+        return row, mesh
+
+    monkeypatch.setattr(type(module), "evaluate_member", member)
+    with caplog.at_level(logging.WARNING, logger="deepcurrents.models.autodecoder"):
+        metrics = module.final_evaluation(tmp_path / "eval", meshes=datamodule.meshes)
+    rows = per_shape(tmp_path / "eval" / "per_shape.csv")
+    assert metrics["empty_meshes"] == 1 and metrics["shapes_evaluated"] == 2
+    assert rows[1]["ucd"] == "" and metrics["ucd"] == pytest.approx(0.01)  # the other shape's alone
+    assert "1 of 2 training shapes meshed empty (001_saddle.ply)" in caplog.text
+
+
 # ------------------------------------------------------------------------------------ training and apps
 def per_shape(path: Path) -> list[dict]:
     with open(path) as fh:

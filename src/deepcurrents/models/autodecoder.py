@@ -514,6 +514,13 @@ class AutodecoderModule(DeepCurrentsModule):
                         out_dir / "meshes.png", titles=[t for _, _, t, _ in shown])
         train_rows, held_rows = rows[:count], rows[count:]
         ucd = [r["ucd"] for r in train_rows if r["ucd"] is not None]
+        for split, part in (("training", train_rows), ("held-out", held_rows)):
+            empty = [r["name"] for r in part if r["ucd"] is None]
+            if empty:  # an empty mesh has no UCD: the means below are over the others, and would flatter the run
+                log.warning("%d of %d %s shapes meshed empty (%s): ucd and boundary_error are over the other %d; "
+                            "metrics.json counts them in empty_meshes%s.", len(empty), len(part), split,
+                            ", ".join(empty[:5]) + (", ..." if len(empty) > 5 else ""), len(part) - len(empty),
+                            "" if split == "training" else "_held_out")
         be = [r["boundary_error"] for r in train_rows if r["boundary_error"] is not None]
         metrics: dict[str, Any] = {
             "loss": float(self.trainer.callback_metrics.get("train/loss", float("nan")))
