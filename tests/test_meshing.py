@@ -392,7 +392,7 @@ def test_phase_curve_of_an_untrained_2d_current_is_the_segment():
     opposite it is the straight segment (the 2D analogue of the flat disk of a planar circle). The paper's level
     set f = s finds nothing in a constant f."""
     from deepcurrents.eval.meshing import extract_curve_2d
-    from deepcurrents.eval.metrics import curve_length
+    from deepcurrents.eval.metrics import curve_boundary_error, curve_length
     from deepcurrents.nn import NeuralCurrent
 
     torch.manual_seed(0)
@@ -403,9 +403,34 @@ def test_phase_curve_of_an_untrained_2d_current_is_the_segment():
     curves = extract_curve_2d(current, resolution=127, delta=0.0, method="phase")
     assert len(curves) == 1 and abs(curve_length(curves) - 1.0) < 0.01
     assert np.abs(curves[0][:, 1]).max() < 2.0 / 127  # on y = 0, within a grid cell
+    poles = current.poles.double().numpy()
+    assert curve_boundary_error(curves, poles) < 1e-12  # the segment ends on both points
+    # the default δ drops the middle, where the untrained |ω| is small: two pieces, each from a point to a loose end
+    broken = extract_curve_2d(current, resolution=127, method="phase")
+    assert len(broken) == 2 and curve_length(broken) < 0.9
+    ends = np.concatenate([[c[0], c[-1]] for c in broken])
+    loose = np.linalg.norm(ends[:, None] - poles[None], axis=-1).min(1).max()
+    assert loose > 0.05 and curve_boundary_error(broken, poles) == pytest.approx(loose)
+    assert curve_boundary_error([], poles) is None
+    loop = np.array([[-0.5, 0.0], [0.0, 0.3], [-0.5, 0.0]])  # back to the point it left: (0.5, 0) is 1 from any end
+    assert curve_boundary_error([loop], poles) == pytest.approx(1.0)
     assert extract_curve_2d(current, resolution=127, delta=0.0, method="level_set") == []
     with pytest.raises(ValueError, match="method"):
         extract_curve_2d(current, method="magic")
+
+
+def test_good_runs_split_a_polyline_and_keep_a_closed_ones_run_through_its_start_whole():
+    from deepcurrents.eval.meshing.curve_2d import good_runs
+
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1], [0, 0]], dtype=float)  # closed: 4 segments
+    open_line = square[:4]  # the same points, not closed: 3 segments
+    pieces = good_runs(open_line, np.array([True, False, True]))
+    assert [p.tolist() for p in pieces] == [[[0, 0], [1, 0]], [[1, 1], [0, 1]]]
+    # closed, the segment (1,0)→(1,1) dropped: the good run goes (1,1) → (0,1) → (0,0) → (1,0), through the start
+    pieces = good_runs(square, np.array([True, False, True, True]))
+    assert [p.tolist() for p in pieces] == [[[1, 1], [0, 1], [0, 0], [1, 0]]]
+    assert good_runs(square, np.zeros(4, bool)) == []
+    assert len(good_runs(square, np.ones(4, bool))) == 1
 
 
 def test_the_phase_sums_the_solid_angle_in_float64():

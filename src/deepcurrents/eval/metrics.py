@@ -266,6 +266,17 @@ def curve_length(curves: list[np.ndarray]) -> float:
     return float(sum(np.linalg.norm(np.diff(c, axis=0), axis=1).sum() for c in curves))
 
 
+def curve_boundary_error(curves: list[np.ndarray], points: np.ndarray) -> float | None:
+    """2D: the symmetric Hausdorff distance between the curves' ends and Γ's points (the boundary of a curve is
+    its ends, Γ a 0-chain): a point no curve reaches and a curve that stops short of Γ both count.
+    curves: polylines (K_i, 2); points (P, 2). None if there is no curve."""
+    if not curves:
+        return None
+    ends = np.concatenate([np.stack([c[0], c[-1]]) for c in curves])
+    dist = np.linalg.norm(ends[:, None] - np.asarray(points)[None], axis=-1)  # (2 × curves, P)
+    return float(max(dist.min(0).max(), dist.min(1).max()))
+
+
 def sample_surface_faces(mesh: trimesh.Trimesh, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """``n`` points drawn uniformly (by area) on a triangle mesh, reproducibly, and the face each lies on.
     → (points (n, 3) float64, faces (n,) int)."""

@@ -14,7 +14,13 @@ from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method, mesh_region
-from deepcurrents.eval.metrics import curve_length, mass_estimate, mass_estimate_settings, mass_to_area
+from deepcurrents.eval.metrics import (
+    curve_boundary_error,
+    curve_length,
+    mass_estimate,
+    mass_estimate_settings,
+    mass_to_area,
+)
 from deepcurrents.eval.plots import plot_current_2d
 from deepcurrents.losses import current_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
@@ -150,11 +156,7 @@ class CurrentModule(DeepCurrentsModule):
         else:
             curves = extract_curve_2d(self.current, **self.evaluation.get("curve", {}))
             metrics["curve_length"] = curve_length(curves)
-            poles = self.current.poles.cpu().numpy()
-            ends = np.concatenate([c[[0, -1]] for c in curves]) if curves else np.zeros((0, 2))
-            metrics["boundary_error"] = (
-                float(np.linalg.norm(poles[:, None] - ends[None], axis=-1).min(1).max()) if len(ends) else None
-            )
+            metrics["boundary_error"] = curve_boundary_error(curves, self.current.poles.cpu().double().numpy())
             np.savez(out_dir / "curve.npz", *curves)
             self._plot_2d(curves, out_dir / "current.png")
         return self.write_metrics(out_dir, metrics)

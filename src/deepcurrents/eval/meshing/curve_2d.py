@@ -34,6 +34,20 @@ def phase_2d(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
 
 @torch.no_grad()
 @reads_level_sets
+def good_runs(points: np.ndarray, good: np.ndarray) -> list[np.ndarray]:
+    """The runs of consecutive good segments of a polyline as polylines. points (K, 2), good (K − 1,) bool for
+    the segments points[i] → points[i + 1]. A closed polyline (first point = last) whose good run passes its
+    start gives one piece, not two with loose ends at the start."""
+    idx = np.flatnonzero(good)
+    if len(idx) == 0:
+        return []
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    pieces = [points[run[0]: run[-1] + 2] for run in runs]
+    if len(runs) > 1 and np.array_equal(points[0], points[-1]) and runs[0][0] == 0 and runs[-1][-1] == len(good) - 1:
+        pieces = [np.concatenate([pieces[-1], pieces[0][1:]]), *pieces[1:-1]]
+    return pieces
+
+
 def extract_curve_2d(
     current, resolution: int = 256, delta: float = 5e-3, boundary_tube: float = 0.03, min_alignment: float = 0.5,
     method: str = "phase", chunk_size: int = 1 << 16,
@@ -82,13 +96,7 @@ def extract_curve_2d(
             # as in 3D: on the curve the current flows along ∇f; on the complementary level curve it does not
             carries &= aligned_with_grad_f(current, mid_t, omega, min_alignment)
         good &= carries.cpu().numpy()
-        # split into runs of good segments
-        idx = np.flatnonzero(good)
-        if len(idx) == 0:
-            continue
-        runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-        for run in runs:
-            piece = pts[run[0]: run[-1] + 2]
+        for piece in good_runs(pts, good):
             joined = 0
             for end in (0, -1):  # join ends that stopped at the tube to their pole
                 d = np.linalg.norm(poles - piece[end], axis=1)
