@@ -112,16 +112,19 @@ def test_kill_9_then_auto_resume_equals_the_uninterrupted_run(tmp_path, uninterr
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGUSR1], ids=["SIGTERM", "SIGUSR1"])
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGUSR1, signal.SIGINT],
+                         ids=["SIGTERM", "SIGUSR1", "SIGINT"])
 def test_preemption_signal_writes_a_checkpoint_and_resume_reaches_the_same_weights(tmp_path, uninterrupted,
                                                                                    signum):
+    """Preemption (SIGTERM, SIGUSR1) and Ctrl-C (SIGINT): the running step ends, last.ckpt holds it, the process
+    says how to continue; resuming reaches the uninterrupted run's weights."""
     out = tmp_path / "run"
     proc = start_cli([*RUN, f"hydra.run.dir={out}"])
     wait_for(out / "checkpoints" / "last.ckpt", proc)
     proc.send_signal(signum)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 143, err[-2000:]
-    assert "Traceback" not in err
+    said, err = proc.communicate(timeout=120)
+    assert proc.returncode == (130 if signum == signal.SIGINT else 143), err[-2000:]
+    assert "Traceback" not in err and (said + err).count("Continue with ckpt_path=auto") == 1, (said + err)[-2000:]
     stopped_at = torch.load(out / "checkpoints/last.ckpt", weights_only=True)["global_step"]
     assert 0 < stopped_at < STEPS and not (out / "metrics.json").exists()
     assert not (out / run_dir.LOCK_NAME).exists()  # released on the way out

@@ -209,3 +209,16 @@ def test_coarse_to_fine_features_follow_the_budget_and_travel_in_checkpoints(tmp
     assert float(expected.mean()) < 1  # not every frequency is open at 5/6 of a budget that opens them over all of it
     with pytest.raises(UserInputError, match=r"model.rff.coarse_to_fine=2.0 must be a fraction"):
         build(compose_cfg(["experiment=minimal_trefoil", *TINY, "model.rff.coarse_to_fine=2"]))
+
+
+def test_the_progress_bar_names_the_run_not_an_epoch_of_minus_two(tmp_path):
+    """A run is one epoch of max_steps batches (max_epochs=-1): Lightning's rich bar said "Epoch 0/-2"."""
+    from lightning.pytorch.callbacks.progress import ProgressBar
+
+    from deepcurrents.experiments.runner import build_callbacks
+
+    cfg = compose_cfg(["experiment=minimal_trefoil", "callbacks.media=null"])
+    bars = [cb for cb in build_callbacks(cfg, tmp_path) if isinstance(cb, ProgressBar)]
+    assert len(bars) == 1 and bars[0]._get_train_description(0).strip() == "Training"
+    quiet = compose_cfg(["experiment=minimal_trefoil", "callbacks.media=null", "trainer.enable_progress_bar=false"])
+    assert not any(isinstance(cb, ProgressBar) for cb in build_callbacks(quiet, tmp_path))

@@ -33,6 +33,7 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import InstantiationException
 from lightning.pytorch.accelerators import CPUAccelerator
+from lightning.pytorch.callbacks.progress import ProgressBar
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
 from omegaconf import DictConfig, OmegaConf
 
@@ -45,6 +46,7 @@ from deepcurrents.experiments.run_dir import (
     make_run_dir,
     resume_path,
 )
+from deepcurrents.models.callbacks import progress_bar
 from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint, ResumeState
 from deepcurrents.models.current_module import boundary_spec
 from deepcurrents.models.loading import check_resumable
@@ -109,6 +111,11 @@ def build_callbacks(cfg: DictConfig, out_dir: Path) -> list:
             continue
         kwargs = {"dirpath": str(out_dir / "checkpoints")} if name == "model_checkpoint" else {}
         callbacks.append(instantiate(cb, **kwargs))
+    if cfg.get("trainer", {}).get("enable_progress_bar", True) \
+            and not any(isinstance(cb, ProgressBar) for cb in callbacks):
+        bar = progress_bar()
+        if bar is not None:
+            callbacks.append(bar)
     return callbacks
 
 
@@ -192,8 +199,9 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
     Before training: the inputs are checked (one sentence on a bad one), the run directory must be writable
     with room for the checkpoints and must not be in use by another run (a lock file, experiments.run_dir),
     and a checkpoint to resume from (``ckpt_path=FILE|auto``) must be a DeepCurrents checkpoint of this model
-    kind and problem (models.loading.check_resumable). SIGTERM or SIGUSR1 (preemption) writes ``checkpoints/last.ckpt``
-    and ends the process with status 143; ``ckpt_path=auto`` continues from it.
+    kind and problem (models.loading.check_resumable). SIGTERM or SIGUSR1 (preemption) or Ctrl-C writes
+    ``checkpoints/last.ckpt`` after the running step and ends the process with status 143 (Ctrl-C: 130);
+    ``ckpt_path=auto`` continues from it.
     """
     out_dir = make_run_dir(Path(out_dir) if out_dir is not None else output_dir(cfg))
     with RunLock(out_dir) if is_global_rank_zero() else nullcontext():
@@ -214,10 +222,11 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
     check_free_space(out_dir, module)
     module.check_final_mesh()
     last = out_dir / "checkpoints" / "last.ckpt"
+    preemption = PreemptionCheckpoint(last)
     trainer: L.Trainer = build_trainer(
         cfg,
         logger=build_logger(cfg, out_dir),
-        callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), PreemptionCheckpoint(last)],
+        callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), preemption],
         plugins=[AtomicCheckpointIO()],
         default_root_dir=str(out_dir),
         **trainer_overrides(cfg),  # max_time in seconds → timedelta
@@ -233,9 +242,10 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
         text = " ".join(str(err).split()).rstrip(".")
         raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
     except SIGTERMException:
-        log.warning("Stopped by a signal (SIGTERM/SIGUSR1) at step %d; %s holds it. Continue with ckpt_path=auto "
-                    "hydra.run.dir=%s.", trainer.global_step, last, out_dir)
-        raise SystemExit(143) from None
+        name = preemption.signal_name
+        log.warning("Stopped by %s at step %d; %s holds it. Continue with ckpt_path=auto hydra.run.dir=%s.",
+                    "Ctrl-C" if name == "SIGINT" else name, trainer.global_step, last, out_dir)
+        raise SystemExit(130 if name == "SIGINT" else 143) from None
     # the final state, whatever step it ended on (periodic checkpoints may be older)
     trainer.save_checkpoint(last, weights_only=False)
     if trainer.interrupted:

@@ -39,6 +39,23 @@ def _wandb_loggers(trainer: L.Trainer) -> list:
     return [lg for lg in trainer.loggers if isinstance(lg, WandbLogger)]
 
 
+
+def progress_bar() -> L.Callback | None:
+    """Lightning's rich progress bar, its task named "Training" instead of "Epoch 0/-2": a run here is one epoch
+    of ``max_steps`` batches with ``max_epochs=-1``, which the stock bar prints as its last epoch, -2. None where
+    rich is missing (Lightning's tqdm bar then says "Epoch 0", which reads right)."""
+    from lightning.pytorch.callbacks import RichProgressBar
+    from lightning.pytorch.callbacks.progress.rich_progress import _RICH_AVAILABLE
+
+    if not _RICH_AVAILABLE:
+        return None
+
+    class StepProgressBar(RichProgressBar):
+        def _get_train_description(self, current_epoch: int) -> str:
+            return f"{'Training':{len(self.validation_description)}}"
+
+    return StepProgressBar()
+
 class MediaCallback(L.Callback):
     """Renders of the current during and after training.
 

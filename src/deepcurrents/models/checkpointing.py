@@ -7,7 +7,7 @@ from the file), and carrying what an exact resume needs beyond Lightning's own s
 - :class:`ResumeState`: a callback saving the global random generators (torch, CUDA, numpy, Python) in every
   checkpoint and restoring them before the first step of a resumed run.
 - :class:`PreemptionCheckpoint`: a callback writing ``last.ckpt`` when the run is stopped by SIGTERM or SIGUSR1
-  (SLURM preemption, ``scancel``, a time limit) so that a requeued job continues from the step it reached.
+  (SLURM preemption, ``scancel``, a time limit) or Ctrl-C, so that a requeued job continues from the step it reached.
 """
 
 from __future__ import annotations
@@ -144,25 +144,36 @@ class ResumeState(L.Callback):
 
 
 class PreemptionCheckpoint(L.Callback):
-    """On SIGTERM (Lightning stops after the running step with SIGTERMException) or SIGUSR1 (the signal SLURM
+    """On SIGTERM (Lightning stops after the running step with SIGTERMException), SIGUSR1 (the signal SLURM
     sends ahead of a time limit with ``--signal=USR1@90``; handled here unless Lightning's own SLURM
-    auto-requeue handler has it), writes ``path`` (the run's ``checkpoints/last.ckpt``) after the running step
-    and stops. Other exceptions write nothing: after a NaN loss the last good checkpoint must stay."""
+    auto-requeue handler has it) or Ctrl-C (SIGINT; a second Ctrl-C stops at once, without a checkpoint), writes
+    ``path`` (the run's ``checkpoints/last.ckpt``) after the running step and stops; ``signal_name`` says which.
+    Other exceptions write nothing: after a NaN loss the last good checkpoint must stay."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.saved_step: int | None = None
+        self.signal_name = "SIGTERM"
         self._stop = False
-        self._previous: Any = None
+        self._previous: dict[int, Any] = {}
 
     def _on_signal(self, signum: int, frame: Any) -> None:
+        if signum == signal.SIGINT:
+            if self._stop:  # pressed again: the user does not want to wait for the step
+                raise KeyboardInterrupt
+            log.warning("Ctrl-C: stopping after this step and writing the checkpoint (Ctrl-C again stops at once, "
+                        "losing the steps since the last checkpoint).")
+        self.signal_name = signal.Signals(signum).name
         self._stop = True  # acted on at the end of the running step
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
         usr1 = getattr(signal, "SIGUSR1", None)
-        if usr1 is not None and threading.current_thread() is threading.main_thread() \
-                and signal.getsignal(usr1) in (signal.SIG_DFL, None):
-            self._previous = signal.signal(usr1, self._on_signal)
+        if usr1 is not None and signal.getsignal(usr1) in (signal.SIG_DFL, None):
+            self._previous[usr1] = signal.signal(usr1, self._on_signal)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where a caller handles Ctrl-C
+            self._previous[signal.SIGINT] = signal.signal(signal.SIGINT, self._on_signal)
 
     def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any, batch: Any,
                            batch_idx: int) -> None:
@@ -170,12 +181,13 @@ class PreemptionCheckpoint(L.Callback):
             raise SIGTERMException()
 
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGUSR1, self._previous)
-            self._previous = None
+        for signum, previous in self._previous.items():
+            signal.signal(signum, previous)
+        self._previous = {}
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
         if isinstance(exception, SIGTERMException):
             trainer.save_checkpoint(self.path, weights_only=False)
             self.saved_step = int(trainer.global_step)
-            log.warning("Stopped by a signal at step %d; checkpoint written to %s.", self.saved_step, self.path)
+            log.info("Stopped by %s at step %d; checkpoint written to %s.", self.signal_name, self.saved_step,
+                     self.path)
