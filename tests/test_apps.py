@@ -2,6 +2,7 @@
 launcher configs: on a tiny disk (circle boundary) trained once for the whole module."""
 
 import json
+import pickle
 import subprocess
 import sys
 from pathlib import Path
@@ -70,6 +71,23 @@ def test_bad_checkpoints_are_one_sentence(run, tmp_path):
     truncated.write_bytes(good.read_bytes()[:2000])
     with pytest.raises(CheckpointError, match="truncated or corrupt"):
         load_module(truncated)
+    # one byte changed inside a tensor's entry: torch.load read it without a word; the zip checksum catches it
+    import struct
+    import zipfile
+
+    with zipfile.ZipFile(good) as archive:
+        entry = max(archive.infolist(), key=lambda i: i.file_size)  # the largest tensor's bytes
+    data = bytearray(good.read_bytes())
+    name_len, extra_len = struct.unpack("<HH", data[entry.header_offset + 26: entry.header_offset + 30])
+    data[entry.header_offset + 30 + name_len + extra_len + entry.file_size // 2] ^= 0xFF
+    damaged = tmp_path / "damaged.ckpt"
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match=rf"is corrupt: its entry '{entry.filename}' fails its checksum"):
+        load_module(damaged)
+    pickled = tmp_path / "pickled.ckpt"  # a plain pickle (not torch.save's archive) is refused unread
+    pickled.write_bytes(pickle.dumps({"state_dict": {}}))
+    with pytest.raises(CheckpointError, match="plain Python pickle"):
+        load_module(pickled)
     foreign = tmp_path / "foreign.ckpt"
     torch.save({"state_dict": {}, "epoch": 0}, foreign)
     with pytest.raises(CheckpointError, match="not written by DeepCurrents"):

@@ -191,3 +191,20 @@ def test_a_full_disk_while_saving_keeps_the_previous_checkpoint(tmp_path, monkey
         checkpointing.atomic_torch_save({"step": 2}, path)
     assert torch.load(path, weights_only=True) == {"step": 1}
     assert [p.name for p in tmp_path.iterdir()] == ["last.ckpt"]  # no temporary file left
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o077])
+def test_a_checkpoint_gets_the_mode_any_new_file_gets(tmp_path, mask):
+    """The temporary file's 0600 (mkstemp) must not outlive the rename: a shared checkpoint is readable by the group
+    and others under the usual umask 022, and stays private under 077."""
+    import os
+    import stat
+
+    from deepcurrents.models import checkpointing
+
+    old = os.umask(mask)
+    try:
+        checkpointing.atomic_torch_save({"step": 1}, tmp_path / "last.ckpt")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "last.ckpt").stat().st_mode) == 0o666 & ~mask

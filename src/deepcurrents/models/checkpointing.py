@@ -60,6 +60,13 @@ def plain_data(obj: Any, where: str = "checkpoint") -> Any:
                     "tensors and plain data (convert it in on_save_checkpoint or state_dict).")
 
 
+def current_umask() -> int:
+    """The process's file-creation mask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def atomic_torch_save(obj: Any, path: str | Path) -> None:
     """torch.save into a temporary file in the same directory, fsync, then os.replace onto ``path``."""
     path = Path(path)
@@ -67,6 +74,8 @@ def atomic_torch_save(obj: Any, path: str | Path) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        if hasattr(os, "fchmod"):  # mkstemp's 0600 would outlive the rename: the mode any new file gets here
+            os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, "wb") as fh:
             torch.save(obj, fh)
             fh.flush()

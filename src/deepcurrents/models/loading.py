@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 import pickle
 import re
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,29 @@ from deepcurrents.models.reconstruction import TargetGeometry
 
 class CheckpointError(UserInputError):
     """A checkpoint that cannot be used: missing, truncated, foreign, or of the wrong model kind."""
+
+
+def check_archive(path: Path, ckpt_path: str | Path) -> None:
+    """CheckpointError unless ``path`` is the zip archive torch.save writes with every entry's checksum intact: a
+    byte flipped in a copy or on disk would otherwise load without a word (torch reads entries without checking
+    them). A plain pickle (or torch.save's legacy format) is refused unread."""
+    if not zipfile.is_zipfile(path):
+        with open(path, "rb") as fh:
+            head = fh.read(1)
+        if head == b"\x80":  # a pickle's protocol opcode
+            raise CheckpointError(f"ckpt_path='{ckpt_path}' is a plain Python pickle (or torch.save's legacy format), "
+                                  "not a checkpoint; it is refused unread, because opening it could run code.")
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a readable PyTorch checkpoint (truncated or corrupt: "
+                              "not the zip archive torch.save writes).")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as err:
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a readable PyTorch checkpoint (truncated or corrupt: "
+                              f"{type(err).__name__}).") from None
+    if bad is not None:
+        raise CheckpointError(f"ckpt_path='{ckpt_path}' is corrupt: its entry '{bad}' fails its checksum (a damaged "
+                              "copy or disk); use an earlier checkpoint or copy it again.")
 
 
 def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
@@ -42,6 +66,7 @@ def read_checkpoint(ckpt_path: str | Path) -> dict[str, Any]:
         raise CheckpointError(f"ckpt_path='{ckpt_path}' is a directory, not a checkpoint file{hint}.")
     if not path.is_file():
         raise CheckpointError(f"ckpt_path='{ckpt_path}' is not a file.")
+    check_archive(path, ckpt_path)
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
