@@ -228,6 +228,11 @@ TRAIN_CASES = [
      r"data\.curve_vertices='many' must be an integer ≥ 3"),
     ("num_workers a word", overrides("experiment=minimal_trefoil", "data.num_workers=all"),
      r"data\.num_workers='all' must be an integer ≥ 0"),
+    # a key added with '+' that no constructor takes: Hydra passed it on and the constructor's TypeError came out
+    ("misspelt network key", overrides("experiment=minimal_trefoil", "+model.net.widht=64"),
+     r"model\.net\.widht is not a setting NeuralCurrent takes"),
+    ("misspelt data key", overrides("experiment=minimal_trefoil", "+data.widht=3"),
+     r"data\.widht is not a setting MinimalSurfaceDataModule takes"),
     # checkpoints to resume from
     ("resume missing", overrides("experiment=minimal_trefoil", "ckpt_path=/nonexistent/last.ckpt"), "does not exist"),
     ("resume text file", lambda tmp: ["experiment=minimal_trefoil",

@@ -21,6 +21,7 @@ import ctypes
 import json
 import logging
 import os
+import re
 import sys
 import time
 from contextlib import contextmanager, nullcontext
@@ -76,16 +77,42 @@ def keep_freed_memory(threshold: int = MMAP_THRESHOLD) -> bool:
 
 def instantiate(node: DictConfig, **kwargs):
     """hydra.utils.instantiate, but a UserInputError raised inside a constructor comes out as itself
-    (Hydra wraps it in an InstantiationException with the target's traceback text)."""
+    (Hydra wraps it in an InstantiationException with the target's traceback text), and a key that no
+    constructor takes (a misspelt one added with Hydra's ``+``) is one sentence naming it."""
     try:
         return hydra.utils.instantiate(node, **kwargs)
     except InstantiationException as err:
         cause = err.__cause__
         while cause is not None and not isinstance(cause, UserInputError):
+            if isinstance(cause, TypeError):
+                unknown = re.search(r"([\w.]+)\(\) got an unexpected keyword argument '(\w+)'", str(cause))
+                if unknown is not None:
+                    raise ConfigError(unknown_key_message(node, *unknown.groups())) from None
             cause = cause.__cause__
         if cause is not None:
             raise cause from None
         raise
+
+
+def unknown_key_message(node: DictConfig, target: str, name: str) -> str:
+    """One sentence for a key ``name`` under ``node`` that ``target``'s constructor does not take."""
+    prefix = node._get_full_key(None) or ""
+    paths = []
+
+    def walk(value, path):
+        if isinstance(value, dict):
+            for key, child in value.items():
+                walk(child, f"{path}.{key}" if path else str(key))
+            if path.rsplit(".", 1)[-1] == name:
+                paths.append(path)
+        elif path.rsplit(".", 1)[-1] == name:
+            paths.append(path)
+
+    walk(OmegaConf.to_container(node, resolve=False), prefix)
+    where = " or ".join(paths) or name
+    owner = target.removesuffix(".__init__")
+    return (f"{where} is not a setting {owner} takes (a misspelt key, or one added with '+' that "
+            "nothing reads); `python train.py … --cfg job` prints the settings there are.")
 
 
 def output_dir(cfg: DictConfig) -> Path:

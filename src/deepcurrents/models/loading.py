@@ -131,6 +131,11 @@ def file_frame(module) -> tuple[float, np.ndarray] | None:
     return input_frame((getattr(module, "hparams", None) or {}).get("boundary") or {})
 
 
+def article(name: str) -> str:
+    """``name`` after its indefinite article (a CurrentModule, an AutodecoderModule)."""
+    return f"{'an' if name[:1].upper() in 'AEIOU' else 'a'} {name}"
+
+
 def run_kind(cls: type) -> str:
     """The kind of run a model class is trained by, in the README's words (for messages)."""
     words = {"AutodecoderModule": "a family run's checkpoint (experiment=latent_*)",
@@ -138,7 +143,7 @@ def run_kind(cls: type) -> str:
              "CurrentModule": "a minimal surface's checkpoint (experiment=minimal_*)",
              "GridModule": "the grid method's checkpoint (experiment=minimal_grid)",
              "ClosestPointModule": "the closest-point baseline's checkpoint (experiment=recon_baseline)"}
-    return next((words[c.__name__] for c in cls.__mro__ if c.__name__ in words), f"a {cls.__name__} checkpoint")
+    return next((words[c.__name__] for c in cls.__mro__ if c.__name__ in words), f"{article(cls.__name__)} checkpoint")
 
 
 def load_module(ckpt_path: str | Path, map_location: str | torch.device | None = "cpu",
@@ -165,7 +170,7 @@ def load_module(ckpt_path: str | Path, map_location: str | torch.device | None =
         module.load_state_dict(ckpt["state_dict"], strict=True)
     except RuntimeError:
         raise CheckpointError(
-            f"ckpt_path='{ckpt_path}': its weights do not fit a {cls.__name__} built from its own "
+            f"ckpt_path='{ckpt_path}': its weights do not fit {article(cls.__name__)} built from its own "
             "hyperparameters (the file was edited or comes from another version)."
         ) from None
     if hasattr(module, "on_load_checkpoint"):
@@ -223,8 +228,8 @@ def check_resumable(ckpt_path: str | Path, module: DeepCurrentsModule) -> dict[s
     cls = module_class(info["module"], ckpt_path)
     if cls is not type(module):
         raise CheckpointError(
-            f"ckpt_path='{ckpt_path}' holds a {cls.__name__}, but this run's config builds a "
-            f"{type(module).__name__}; resume with the model it was trained with."
+            f"ckpt_path='{ckpt_path}' holds {article(cls.__name__)}, but this run's config builds "
+            f"{article(type(module).__name__)}; resume with the model it was trained with."
         )
     saved_cfg = info.get("config") if isinstance(info.get("config"), dict) else {}
     own_cfg = module.run_config or {}
@@ -293,7 +298,7 @@ def current_to_view(module, shape: int | None = None):
         return module.member(module.latent(index), module.shape_loops(index))
     if shape is not None:
         raise ValueError(f"shape={shape} was given, but this {type(module).__name__} holds a single current")
-    raise ValueError(f"a {type(module).__name__} has neither a `current` nor family members to look at")
+    raise ValueError(f"{article(type(module).__name__)} has neither a `current` nor family members to look at")
 
 
 def viewable_current(module: torch.nn.Module, ckpt_path: str | Path = "", shape: int | None = None):
