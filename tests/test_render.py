@@ -209,3 +209,31 @@ def test_2d_picture_draws_the_metric_as_oriented_ellipses(tmp_path):
     path = tmp_path / "fig3.png"
     render_current_2d(current, path, curves=[], resolution=21, arrows=5)
     assert iio.imread(path).ndim == 3
+
+
+def test_a_2d_reconstruction_gets_its_metric_picture_from_the_render_app(tmp_path):
+    """Fig. 3d: the semicircle target's metric B = I − n nᵀ (data.recon.CurveMetricDataModule.metric_fn) drawn by
+    `render` as render_metric.png beside render.png; B by hand at two points (above the middle of the arc: n
+    vertical, so B keeps x only; beyond an end: I)."""
+    from conftest import QUIET_CPU, ROOT, compose_cfg, run_command_in_process
+
+    from deepcurrents.cli.render import metric_of
+    from deepcurrents.data.recon import CurveMetricDataModule
+    from deepcurrents.experiments.runner import train
+    from deepcurrents.models.loading import load_module
+
+    data = CurveMetricDataModule(radius=0.5)
+    b = data.metric_fn(torch.tensor([[0.0, 0.8], [-0.9, -0.3]], dtype=torch.float64))
+    # the arc is 200 segments: the closest one's normal is π/400 off vertical there
+    assert torch.allclose(b[0], torch.tensor([[1.0, 0.0], [0.0, 0.0]], dtype=torch.float64), atol=1e-2)
+    assert torch.allclose(b[1], torch.eye(2, dtype=torch.float64))
+    train(compose_cfg(["experiment=recon_2d_semicircle", *QUIET_CPU, "trainer.max_steps=2", "data.num_samples=64",
+                       "model.rff.num_frequencies=8", "model.net.width=8", "model.net.depth=1",
+                       "evaluation.mass_samples=4096", "evaluation.curve.resolution=32"]), out_dir=tmp_path / "run")
+    ckpt = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    metric = metric_of(load_module(ckpt))
+    assert metric is not None and torch.allclose(metric(torch.tensor([[0.0, 0.8]])), b[0].float(), atol=1e-6)
+    proc = run_command_in_process("deepcurrents.render", [f"ckpt_path={ckpt}", f"out_dir={tmp_path / 'pictures'}"],
+                                  cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "pictures").iterdir()) == ["render.png", "render_metric.png"]

@@ -426,6 +426,10 @@ class CurveMetricDataModule(L.LightningDataModule):
         self.curve, self.num_samples, self.num_workers, self.seed = pts, num_samples, num_workers, seed
         self.boundary = validate_points(pts[[0, -1]], [-1.0, 1.0], source="the curve's end points")
 
+    def metric_fn(self, x: torch.Tensor) -> torch.Tensor:
+        """B_x of this target at any points, for pictures (Fig. 3d's ellipses). x (N, 2) → (N, 2, 2)."""
+        return curve_metric_2d(x, torch.as_tensor(self.curve, dtype=x.dtype, device=x.device))
+
     def train_dataloader(self) -> DataLoader:
         trainer = self.trainer
         rank = trainer.global_rank if trainer is not None else 0
