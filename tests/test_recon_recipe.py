@@ -40,6 +40,36 @@ def test_table1_compares_ucds_in_the_target_files_units():
     assert row["ucd_reverse_ours"] == 0.001 and row["ucd_reverse_baseline"] == 0.005
 
 
+def test_table1_note_says_the_samples_used_and_a_baseline_that_stopped_short(tmp_path):
+    """table1.md's note follows the run: its evaluation.ucd_samples, and a baseline that trained for less than
+    our run's wall time is named (the note said 100k samples and equal time whatever the overrides were)."""
+    from omegaconf import OmegaConf
+
+    from deepcurrents.experiments.recon_reports import table1_report
+
+    results = [
+        {"name": "ours_hand", "metrics": {"ucd": 0.008, "train_seconds": 16.1}},
+        {"name": "baseline_hand", "metrics": {"ucd": 0.009, "train_seconds": 0.5}},
+        {"name": "ours_foot", "metrics": {"ucd": 0.007, "train_seconds": 20.0}},
+        {"name": "baseline_foot", "metrics": {"ucd": 0.006, "train_seconds": 19.9}},
+    ]
+    table1_report(tmp_path, results, OmegaConf.create({"evaluation": {"ucd_samples": 5000}}))
+    note = (tmp_path / "table1.md").read_text()
+    assert "5,000 uniform samples" in note and "100k" not in note
+    assert "stopped short of it on hand (" in note and "foot" not in note.split("stopped short")[1]
+
+
+def test_table1_baselines_train_for_the_wall_time_whatever_the_command_line_limits():
+    """The suite's baselines keep max_steps 1e6 after the command line's overrides (final_overrides), so that a
+    trainer.max_steps given for the suite stops our runs but not the baselines' wall-time budget."""
+    cfg = compose_cfg(["experiment=table1"])
+    baselines = [m for m in cfg.suite.runs if m.name.startswith("baseline_")]
+    assert len(baselines) == 4 and all(list(m.final_overrides) == ["trainer.max_steps=1000000"] for m in baselines)
+    member = compose_cfg([*baselines[0].overrides, "preset=cpu", "trainer.max_steps=20",
+                          *baselines[0].final_overrides])
+    assert member.trainer.max_steps == 1000000 and member.model.wall_time_from.endswith("ours_head/metrics.json")
+
+
 def test_baseline_reports_its_ucd_in_the_target_files_units(tmp_path, parts_root):
     overrides = ["experiment=recon_baseline", f"data.root={parts_root}", *TINY, "trainer.max_steps=3",
                  "data.normalize=true"]

@@ -307,12 +307,17 @@ def inherited_overrides() -> list[str]:
 
 
 def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:
-    """Runs every member of ``cfg.suite`` into ``out_dir/<name>`` and calls the report. → member results."""
+    """Runs every member of ``cfg.suite`` into ``out_dir/<name>`` and calls the report. → member results.
+
+    A member's ``overrides`` come before the command line's, its ``final_overrides`` after them (what the
+    member's role fixes whatever the command line says: Table 1's baseline trains for our run's wall time, so a
+    ``trainer.max_steps`` given for the suite must not stop it first)."""
     inherited = inherited_overrides() if extra_overrides is None else list(extra_overrides)
     results = []
     for member in cfg.suite.runs:
         name = str(member.name)
-        overrides = list(member.overrides) + [o for o in inherited if not o.startswith("hydra.")]
+        overrides = (list(member.overrides) + [o for o in inherited if not o.startswith("hydra.")]
+                     + list(member.get("final_overrides") or []))
         member_dir = out_dir / name
         log.info("suite member %s: %s", name, " ".join(overrides))
         member_cfg = hydra.compose(config_name="train", overrides=overrides + [f"paths.output_dir={member_dir}"])
