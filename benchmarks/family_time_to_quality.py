@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from time_to_quality import RESULTS, ROOT, resolve_recipes, time_to_reach, train_recipe  # noqa: E402  (a sibling script, not a package)
+from time_to_quality import ROOT, output_stem, resolve_recipes, time_to_reach, train_recipe, with_suffix  # noqa: E402  (a sibling script, not a package)
 
 RECIPES: dict[str, list[str]] = {
     "paper": ["preset=paper"],  # the paper's sizes (8 meshes × 4000 samples, latent 256, 4 × 256 decoder)
@@ -133,7 +133,8 @@ def main() -> None:
     ap.add_argument("--resolution", type=int, default=None, help="marching cubes (default: the recipe's)")
     ap.add_argument("--ucd-samples", type=int, default=20000)
     ap.add_argument("--threshold", type=float, nargs="+", default=[0.03, 0.02, 0.015])
-    ap.add_argument("--out", default="family_time_to_quality", help="file stem under benchmarks/results/")
+    ap.add_argument("--out", default="family_time_to_quality",
+                    help="file stem: a name under benchmarks/results/, or a path with a folder")
     ap.add_argument("--threads", type=int, default=None,
                     help="torch threads (the loader worker takes a core too: 1 on a 2-core machine)")
     args = ap.parse_args()
@@ -146,7 +147,7 @@ def main() -> None:
     if missing:
         raise SystemExit(f"--shapes: no such mesh {missing[0]} (run `make data` first).")
     data = ["experiment=latent_hands", "data.path=[" + ",".join(str(f) for f in files) + "]", "data.held_out=0"]
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    stem = output_stem(args.out)
     rows: list[dict] = []
     order = list(args.recipes)
     with tempfile.TemporaryDirectory() as tmp:
@@ -166,11 +167,11 @@ def main() -> None:
                       f"(cpu {last['cpu_seconds']:6.1f} s): mean UCD {last['ucd_mean']:.4f}, worst "
                       f"{last['ucd_worst']:.4f}, boundary error {last['boundary_error_mean']:.2g}, "
                       f"{last['empty_meshes']} empty [load {load0:.1f}→{load1:.1f}]", flush=True)
-                write_csv(rows, RESULTS / f"{args.out}.csv")  # after every run: a later failure keeps these
+                write_csv(rows, with_suffix(stem, ".csv"))  # after every run: a later failure keeps these
 
     records = summarise(rows)
     title = f"{Path(args.data).name} {', '.join(args.shapes)} ({torch.get_num_threads()} thread(s))"
-    plot(records, RESULTS / f"{args.out}.png", args.threshold[-1], title)
+    plot(records, with_suffix(stem, ".png"), args.threshold[-1], title)
     summary: dict = {}
     for threshold in args.threshold:
         times = {rc: [time_to_reach([r for r in records if r["recipe"] == rc and r["repeat"] == k], threshold,
@@ -182,10 +183,10 @@ def main() -> None:
         summary[str(threshold)] = times
     final = [r for r in records if r["steps"] == max(q["steps"] for q in records
                                                      if (q["recipe"], q["repeat"]) == (r["recipe"], r["repeat"]))]
-    (RESULTS / f"{args.out}.json").write_text(json.dumps({
+    with_suffix(stem, ".json").write_text(json.dumps({
         "args": vars(args), "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
         "time_to_threshold": summary, "final": final, "copies": records}, indent=2))
-    print(f"wrote {RESULTS / (args.out + '.csv')}, .png, .json")
+    print(f"wrote {with_suffix(stem, '.csv')}, .png, .json")
 
 
 if __name__ == "__main__":

@@ -8,8 +8,8 @@ machine; their per-step cost is the ``s_per_step`` column (process CPU time, one
     python benchmarks/recon_steps.py ref --steps 1000 -- experiment=recon_head preset=paper
 
 Defaults: experiment=recon_hand preset=cpu (overrides come after them). Prints one JSON line per evaluation
-and writes benchmarks/results/recon_steps/NAME.json. ``ucd_input`` is the UCD in the target file's units
-(``ucd`` × the normalisation scale): compare those across frames.
+and writes benchmarks/results/recon_steps/NAME.json (``--out-dir`` for another folder). ``ucd_input`` is the UCD in
+the target file's units (``ucd`` × the normalisation scale): compare those across frames.
 """
 
 from __future__ import annotations
@@ -87,6 +87,8 @@ def main() -> None:
     parser.add_argument("--ema", type=float, default=0.0, help="also evaluate an EMA of the weights (decay)")
     parser.add_argument("--ucd-samples", type=int, default=100_000)
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out-dir", default=str(ROOT / "benchmarks" / "results" / "recon_steps"),
+                        help="folder for NAME.json (default benchmarks/results/recon_steps)")
     args, overrides = parser.parse_known_args()
     overrides = [o for o in overrides if o != "--"]
     torch.set_num_threads(args.threads)
@@ -97,7 +99,7 @@ def main() -> None:
                                                       *overrides])
     L.seed_everything(int(cfg.seed), verbose=False)
     datamodule, module = build(cfg)
-    out = ROOT / "benchmarks" / "results" / "recon_steps"
+    out = Path(args.out_dir).expanduser()
     out.mkdir(parents=True, exist_ok=True)
     probe = UcdProbe(evals, args.ema, args.ucd_samples, out)
     trainer = L.Trainer(max_steps=args.steps, logger=False, enable_checkpointing=False, enable_progress_bar=False,

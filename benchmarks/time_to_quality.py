@@ -2,6 +2,8 @@
 
     python benchmarks/time_to_quality.py --seconds 180 --curves circle05 ellipse tilted_square \\
         --recipes paper cpu fast [--heldout enneper05 tilted_circle04] [--mesh] [--trainer gpu]
+    python benchmarks/time_to_quality.py --seconds 180 --recipes paper sharp --curves my_circle.txt=0.2827 \\
+        --mesh --out results/mine      # a curve of your own (any file train.py reads) and its exact area
 
 Each recipe trains each curve through the real code path (Hydra configs, the DataModule and LightningModule of
 ``train.py``, Lightning with ``trainer.max_time``), one after another in this process; the recipe order turns
@@ -536,14 +538,65 @@ def plot(rows: list[dict], path: Path, threshold: float) -> None:
     plt.close(fig)
 
 
+def output_stem(out: str) -> Path:
+    """``--out`` as the stem the files are written to: a plain name under benchmarks/results/, or a path (with a
+    folder, relative to the working directory). Its folder is made and checked now, before any training, so that
+    a run's results are never lost to a folder that cannot be written at the end."""
+    stem = Path(out).expanduser() if Path(out).name != out else RESULTS / out
+    try:
+        stem.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=stem.parent):
+            pass
+    except OSError as err:
+        raise SystemExit(f"error: --out {out}: the folder {stem.parent} cannot be written "
+                         f"({err.strerror or type(err).__name__}).") from None
+    return stem
+
+
+def with_suffix(stem: Path, suffix: str) -> Path:
+    """stem + suffix ("_fidelity.json", ".csv"), whatever dots the stem's name has."""
+    return stem.parent / f"{stem.name}{suffix}"
+
+
+def own_curve(spec: str) -> tuple[str, tuple[str, float]]:
+    """A curve given as ``PATH=AREA`` (a file train.py reads as data.curve, and its exact minimal area) → (name,
+    (path, area)); SystemExit in one sentence when the file or the area is not usable."""
+    path, _, area = spec.rpartition("=")
+    try:
+        exact = float(area)
+    except ValueError:
+        exact = float("nan")
+    if not path or not math.isfinite(exact) or exact <= 0:
+        raise SystemExit(f"error: curve {spec!r}: give a file with its exact minimal area as PATH=AREA "
+                         "(e.g. my_circle.txt=0.2827), or one of the names in --help.")
+    if not Path(path).expanduser().is_file():
+        raise SystemExit(f"error: curve {spec!r}: the file {path} does not exist.")
+    return Path(path).stem, (str(Path(path).expanduser().resolve()), exact)
+
+
+def check_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Impossible values in one sentence before anything trains."""
+    for key, value, low in (("--seconds", args.seconds, 0.0), ("--mass-samples", args.mass_samples, 0),
+                            ("--copies", args.copies, 0), ("--mesh-resolution", args.mesh_resolution, 3),
+                            ("--steps", args.steps, 0), ("--threads", args.threads, 0)):
+        if value is not None and not value > low:
+            ap.error(f"{key} {value} must be greater than {low}.")
+    if any(not t > 0 for t in args.threshold):
+        ap.error(f"--threshold {args.threshold}: every threshold must be positive.")
+    if args.trainer == "gpu" and not torch.cuda.is_available():
+        ap.error("--trainer gpu needs a CUDA GPU, and this machine has none (--trainer cpu runs anywhere).")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=180.0, help="training budget per recipe and curve")
     ap.add_argument("--steps", type=int, default=None,
                     help="a step budget instead (quality per step does not depend on the machine's load)")
     ap.add_argument("--curves", nargs="*", default=["circle05", "ellipse", "tilted_square"],
-                    help="curves used for tuning (`--curves` alone: none, every curve from --heldout)")
-    ap.add_argument("--heldout", nargs="*", default=[], help="curves never used for tuning (reported apart)")
+                    help="curves used for tuning (`--curves` alone: none, every curve from --heldout): names of "
+                         "the curves above, or your own as PATH=AREA (a curve file and its exact minimal area)")
+    ap.add_argument("--heldout", nargs="*", default=[],
+                    help="curves never used for tuning (reported apart); names or PATH=AREA as for --curves")
     ap.add_argument("--recipes", nargs="+", default=["paper", "cpu", "fast"])
     ap.add_argument("--recipe", action="append", default=[], metavar="NAME=OVERRIDE,OVERRIDE",
                     help="an extra recipe as comma-separated Hydra overrides")
@@ -561,22 +614,36 @@ def main() -> None:
                     help="only compare preset=paper with an independent re-implementation, step by step")
     ap.add_argument("--threshold", type=float, nargs="+", default=[1.5, 1.2, 1.1],
                     help="mass_area / exact values to reach (the plot draws the last)")
-    ap.add_argument("--out", default="time_to_quality", help="file stem under benchmarks/results/")
+    ap.add_argument("--out", default="time_to_quality",
+                    help="file stem: a name under benchmarks/results/, or a path with a folder")
     ap.add_argument("--threads", type=int, default=None,
                     help="torch threads (on a CPU shared with other jobs, 1 avoids threads waiting on each other)")
     ap.add_argument("--trainer", default="cpu", choices=["cpu", "gpu"],
                     help="train on the CPU or one CUDA GPU (scoring runs on the CPU either way)")
     args = ap.parse_args()
     if not args.curves and not args.heldout:
-        raise SystemExit("give at least one curve: --curves or --heldout")
+        ap.error("give at least one curve: --curves or --heldout")
+    check_args(ap, args)
     if args.threads:
         torch.set_num_threads(args.threads)
 
     recipes = resolve_recipes(RECIPES, args.recipe, args.recipes)
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    stem = output_stem(args.out)
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         known = curves(Path(tmp))
+        for group in ("curves", "heldout"):  # own curves (PATH=AREA) by their file's stem; unknown names now
+            names = []
+            for spec in getattr(args, group):
+                if spec not in known and "=" in spec:
+                    name, known_as = own_curve(spec)
+                    known[name] = known_as
+                    spec = name
+                elif spec not in known:
+                    ap.error(f"unknown curve {spec!r}: one of {', '.join(sorted(known))}, or a file of your own "
+                             "as PATH=AREA (its exact minimal area).")
+                names.append(spec)
+            setattr(args, group, names)
         if args.fidelity:
             rows = fidelity(args.fidelity)
             shown = sorted({*range(0, len(rows), max(1, len(rows) // 10)), len(rows) - 1})  # every tenth and the last
@@ -584,14 +651,14 @@ def main() -> None:
                 print(f"  step {r['step']:4d}: ours {r['ours']:.6e}  reference {r['reference']:.6e}  "
                       f"rel. diff {r['rel_diff']:.1e}")
             print(f"largest relative difference over {len(rows)} steps: {max(r['rel_diff'] for r in rows):.2e}")
-            (RESULTS / f"{args.out}_fidelity.json").write_text(json.dumps(rows, indent=2))
+            with_suffix(stem, "_fidelity.json").write_text(json.dumps(rows, indent=2))
             return
         if args.eval_cost:
             out = eval_cost(["experiment=minimal_trefoil", "data.curve_vertices=300", *recipes[args.recipes[0]]],
                             args.steps or 200)
             out["load"] = os.getloadavg()[0]
             print(json.dumps(out, indent=2))
-            (RESULTS / f"{args.out}_eval_cost.json").write_text(json.dumps(out, indent=2))
+            with_suffix(stem, "_eval_cost.json").write_text(json.dumps(out, indent=2))
             return
         if args.step_cost:
             first = [*args.curves, *args.heldout][0]
@@ -603,8 +670,6 @@ def main() -> None:
             return
         order = list(args.recipes)
         for ci, name in enumerate(dict.fromkeys([*args.curves, *args.heldout])):  # a curve named twice runs once
-            if name not in known:
-                raise SystemExit(f"unknown curve {name!r}; known: {sorted(known)}")
             path, exact = known[name]
             rotated = order[ci % len(order):] + order[: ci % len(order)]
             for recipe in rotated:
@@ -636,11 +701,11 @@ def main() -> None:
               "mass_area_stderr", "exact", "ratio", "mesh_area", "mesh_error", "mesh_seconds", "sharpened_ratio",
               "sharpened_ratio_stderr", "final_ratio", "final_ratio_stderr", "final_mesh_error", "evaluation_seconds",
               "load_before", "load_after"]
-    with open(RESULTS / f"{args.out}.csv", "w", newline="") as fh:
+    with open(with_suffix(stem, ".csv"), "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
-    plot(rows, RESULTS / f"{args.out}.png", args.threshold[-1])
+    plot(rows, with_suffix(stem, ".png"), args.threshold[-1])
 
     summary: dict = {}
     for threshold in args.threshold:
@@ -653,13 +718,13 @@ def main() -> None:
             cells = [f"{rc} {t:.1f} s ({t / base:.2f}×)" if t is not None else f"{rc} —" for rc, t in times.items()]
             print(f"  {name:16s} " + ", ".join(cells))
             summary.setdefault(str(threshold), {})[name] = times
-    (RESULTS / f"{args.out}.json").write_text(json.dumps({
+    with_suffix(stem, ".json").write_text(json.dumps({
         "args": vars(args), "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
         "time_to_threshold": summary, "final": [{k: r.get(k) for k in fields} for r in rows
                                                 if r is max((q for q in rows if q["curve"] == r["curve"]
                                                              and q["recipe"] == r["recipe"]),
                                                             key=lambda q: q["seconds"])]}, indent=2))
-    print(f"wrote {RESULTS / (args.out + '.csv')}, .png, .json")
+    print(f"wrote {with_suffix(stem, '.csv')}, .png, .json")
 
 
 if __name__ == "__main__":

@@ -149,3 +149,40 @@ def test_tilted_catenoid_is_the_catenoid_turned_and_moved(tmp_path):
     for loop, aligned in zip(load_boundary(path, normalize=False).loops,
                              load_boundary(aligned_path, normalize=False).loops, strict=True):
         assert np.allclose(loop, aligned @ (ry @ rx).T + np.array([0.1, -0.05, 0.08]), atol=1e-9)
+
+
+def test_a_curve_of_your_own_with_its_exact_area_runs_through_the_benchmark(tmp_path, monkeypatch, capsys):
+    """time_to_quality.py --curves PATH=AREA: a reviewer's own curve (not in the repository) scored against the area
+    they give, files written where --out says (a folder made first); impossible options and unknown curves are one
+    sentence before anything trains."""
+    import csv
+    import json
+
+    ttq = load_benchmark("time_to_quality")
+    t = 2 * np.pi * np.arange(120) / 120
+    ring = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), 0 * t], -1) + [0.1, 0.0, 0.05]
+    np.savetxt(tmp_path / "ring.txt", ring)
+    exact = ttq.polygon_area(ring)
+    out = tmp_path / "new" / "mine"
+    monkeypatch.setattr("sys.argv", ["time_to_quality.py", "--steps", "3", "--copies", "1", "--mass-samples", "4096",
+                                     "--recipes", "cpu", "--curves", f"{tmp_path / 'ring.txt'}={exact}",
+                                     "--out", str(out), "--threads", "1"])
+    ttq.main()
+    rows = list(csv.DictReader(open(tmp_path / "new" / "mine.csv")))
+    assert [r["curve"] for r in rows] == ["ring"] and float(rows[0]["exact"]) == pytest.approx(exact)
+    assert float(rows[0]["ratio"]) == pytest.approx(float(rows[0]["mass_area"]) / exact)
+    assert (tmp_path / "new" / "mine.png").is_file() and json.loads((tmp_path / "new" / "mine.json").read_text())
+    for argv, sentence in [
+        (["--curves", "nowhere.txt=0.3"], "does not exist"),
+        (["--curves", f"{tmp_path / 'ring.txt'}"], "unknown curve"),
+        (["--curves", f"{tmp_path / 'ring.txt'}=big"], "PATH=AREA"),
+        (["--steps", "0"], "--steps 0 must be greater than 0"),
+        (["--seconds", "-3"], "--seconds -3.0 must be greater than 0"),
+        (["--mass-samples", "0"], "--mass-samples 0 must be greater than 0"),
+        (["--copies", "0"], "--copies 0 must be greater than 0"),
+    ]:
+        monkeypatch.setattr("sys.argv", ["time_to_quality.py", *argv])
+        with pytest.raises(SystemExit) as info:
+            ttq.main()
+        said = str(info.value.code) + capsys.readouterr().err
+        assert sentence in said and "Traceback" not in said, (argv, said)
