@@ -4,6 +4,7 @@ quadrature, finite differences and the coarea formula: ψ' has mean 1 over a tur
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -199,3 +200,30 @@ def test_loaded_checkpoint_carries_the_opened_harmonics_and_sharpening():
         assert float(fresh.sharpening) == 0.0
         assert torch.equal(fresh(x, create_graph=False)[1], w_network)
     assert float(fresh.sharpening) == float(trained.sharpening) == pytest.approx(3.0 * 0.5)
+
+
+def test_the_2d_curve_extractor_reads_a_sharpened_current_through_its_network_phase():
+    """extract_curve_2d runs inside level_set_view and without autograd, as the 3D meshers: a sharpened 2D current
+    gives the curve of its network's phase (a review found the decorators moved onto a helper: the sharpened
+    current's phase curve vanished)."""
+    from deepcurrents.eval.level_sets import level_set_view
+    from deepcurrents.eval.meshing import extract_curve_2d
+
+    torch.manual_seed(0)
+    sharp = NeuralCurrent(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+                          num_frequencies=8, width=8, depth=1, phase_sharpening=8.0)
+    sharp(torch.rand(64, 2) * 2 - 1, create_graph=False)  # opens
+    grad_modes = []
+    real_evaluate = sharp.evaluate
+
+    def evaluate(*args, **kwargs):
+        grad_modes.append(torch.is_grad_enabled())
+        return real_evaluate(*args, **kwargs)
+
+    sharp.evaluate = evaluate
+    with level_set_view(sharp):
+        plain = extract_curve_2d(sharp, resolution=63, delta=0.0)
+    curves = extract_curve_2d(sharp, resolution=63, delta=0.0)
+    assert float(sharp.sharpening) == 8.0 and len(curves) == len(plain) == 1
+    assert np.array_equal(curves[0], plain[0])
+    assert grad_modes and not any(grad_modes)

@@ -32,8 +32,6 @@ def phase_2d(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
     return f.double() / current.alpha_scale + angle_2d(x.double(), current.poles, current.signs)
 
 
-@torch.no_grad()
-@reads_level_sets
 def good_runs(points: np.ndarray, good: np.ndarray) -> list[np.ndarray]:
     """The runs of consecutive good segments of a polyline as polylines. points (K, 2), good (K − 1,) bool for
     the segments points[i] → points[i + 1]. A closed polyline (first point = last) whose good run passes its
@@ -48,6 +46,8 @@ def good_runs(points: np.ndarray, good: np.ndarray) -> list[np.ndarray]:
     return pieces
 
 
+@torch.no_grad()
+@reads_level_sets
 def extract_curve_2d(
     current, resolution: int = 256, delta: float = 5e-3, boundary_tube: float = 0.03, min_alignment: float = 0.5,
     method: str = "phase", chunk_size: int = 1 << 16,
