@@ -132,6 +132,56 @@ def test_preemption_signal_writes_a_checkpoint_and_resume_reaches_the_same_weigh
     assert_same_weights(uninterrupted, out / "checkpoints" / "last.ckpt")
 
 
+LOADER_BOUND = """
+import sys, time
+import lightning as L, torch
+from lightning.pytorch.utilities.exceptions import SIGTERMException
+from torch.utils.data import IterableDataset
+from deepcurrents.data.ambient import step_loader
+from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint
+
+class Slow(IterableDataset):  # the loader, not the step, takes the time: the main process waits on a worker
+    def __iter__(self):
+        while True:
+            time.sleep(0.05)
+            yield torch.randn(8, 4)
+
+class Model(L.LightningModule):
+    def __init__(self):
+        super().__init__()
+        self.layer = torch.nn.Linear(4, 1)
+    def training_step(self, batch, i):
+        if i == 5:
+            open(sys.argv[2], "w").close()
+        return self.layer(batch).pow(2).mean()
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), 0.01)
+
+stop = PreemptionCheckpoint(sys.argv[1])
+trainer = L.Trainer(max_steps=100000, callbacks=[stop], plugins=[AtomicCheckpointIO()], logger=False,
+                    enable_progress_bar=False, enable_checkpointing=False, enable_model_summary=False)
+try:
+    trainer.fit(Model(), step_loader(Slow(), 2, 0))
+except SIGTERMException:
+    sys.exit(130)
+"""
+
+
+def test_ctrl_c_from_a_terminal_reaches_loader_workers_without_losing_the_checkpoint(tmp_path):
+    """A terminal's Ctrl-C reaches the whole process group, loader workers included. They ignore it
+    (data.ambient.step_loader's worker init), so the main process, waiting on their next batch, gets it, ends its
+    step and writes last.ckpt (a worker that died of it left the main process a RuntimeError and no checkpoint)."""
+    script, ckpt, ready = tmp_path / "loader_bound.py", tmp_path / "last.ckpt", tmp_path / "ready"
+    script.write_text(LOADER_BOUND)
+    proc = subprocess.Popen([sys.executable, str(script), str(ckpt), str(ready)], cwd=ROOT, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    wait_for(ready, proc)
+    os.killpg(proc.pid, signal.SIGINT)
+    said, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, (said + err)[-2000:]
+    assert "exited unexpectedly" not in err and torch.load(ckpt, weights_only=True)["global_step"] > 5
+
+
 # ------------------------------------------------------------------------------ refused resumes
 TINY = ["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL, "trainer.max_steps=2"]
 

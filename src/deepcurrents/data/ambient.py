@@ -3,11 +3,15 @@ surfaces."""
 
 from __future__ import annotations
 
+import functools
+import os
+import signal
 from collections.abc import Iterator, Sequence
 
 import lightning as L
 import numpy as np
 import torch
+from lightning.fabric.utilities.seed import pl_worker_init_function
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from deepcurrents.data.sampling import AmbientSampler, cell_scores, pool_batch, sample_pool, sampling_options
@@ -31,6 +35,24 @@ def step_generators(seed: int, rank: int, start_step: int) -> Iterator[tuple[int
     while True:
         yield step, torch.Generator().manual_seed(stream_seed(seed, rank, step))
         step += workers
+
+
+def loader_worker_init(worker_id: int, rank: int = 0) -> None:
+    """A loader worker ignores Ctrl-C, which a terminal sends to the whole process group: the main process stops
+    after its running step and writes a checkpoint (models.checkpointing.PreemptionCheckpoint), and a worker that
+    died of it would leave that step without its batch. Seeds the worker as Lightning would
+    (``seed_everything(workers=True)``), whose own init function a loader with one does not get."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if int(os.environ.get("PL_SEED_WORKERS", 0)):
+        pl_worker_init_function(worker_id, rank=rank)
+
+
+def step_loader(dataset: IterableDataset, num_workers: int, rank: int) -> DataLoader:
+    """The DataLoader of a stream of whole batches (``batch_size=None``; one batch a training step), its workers
+    kept alive between epochs and deaf to Ctrl-C (``loader_worker_init``)."""
+    init = functools.partial(loader_worker_init, rank=rank) if num_workers > 0 else None
+    return DataLoader(dataset, batch_size=None, num_workers=num_workers, persistent_workers=num_workers > 0,
+                      worker_init_fn=init)
 
 
 class AmbientSamples(IterableDataset):
@@ -150,5 +172,4 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
         start = trainer.global_step if trainer is not None else 0
         dataset = AmbientSamples(self.dim, self.num_samples, self.seed, rank, start, self.sampling,
                                  pool=self.sample_pool())
-        return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
-                          persistent_workers=self.num_workers > 0)
+        return step_loader(dataset, self.num_workers, rank)

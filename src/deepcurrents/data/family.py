@@ -31,7 +31,7 @@ import trimesh
 from scipy.spatial import cKDTree
 from torch.utils.data import DataLoader, IterableDataset
 
-from deepcurrents.data.ambient import step_generators
+from deepcurrents.data.ambient import step_generators, step_loader
 from deepcurrents.data.augment import AugmentationRanges, augment_mesh
 from deepcurrents.data.recon import ambient_options, ambient_sampler
 from deepcurrents.data.sampling import NearTargetSampler
@@ -370,5 +370,4 @@ class FamilyDataModule(L.LightningDataModule):
             self.num_surface_samples, self.ranges, self.augment, self.boundary_sigma, self.boundary_weighting,
             self.seed, rank, start, self.metric_band, self.sampling, self.surface_epsilon,
         )
-        return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
-                          persistent_workers=self.num_workers > 0)
+        return step_loader(dataset, self.num_workers, rank)

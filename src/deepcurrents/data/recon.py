@@ -17,7 +17,7 @@ import torch
 import trimesh
 from torch.utils.data import DataLoader, IterableDataset
 
-from deepcurrents.data.ambient import step_generators
+from deepcurrents.data.ambient import step_generators, step_loader
 from deepcurrents.data.human_parts import dataset_path
 from deepcurrents.data.sampling import NEAR_SAMPLING_KINDS, NearTargetSampler
 from deepcurrents.data.targets import MeshTarget, PointCloudTarget, closest_point_sample, mesh_boundary_loops
@@ -361,8 +361,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         dataset = TargetSamples(self.target, self.loops, self.num_samples, self.num_surface_samples,
                                 seed=self.seed, rank=rank, start_step=start, batch_kind=self.batch_kind,
                                 near_sigma=self.near_sigma, ambient=self.ambient, **self.sampling)
-        return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
-                          persistent_workers=self.num_workers > 0)
+        return step_loader(dataset, self.num_workers, rank)
 
 
 # ------------------------------------------------------------------------------------------ 2D: Fig. 3e/3f
@@ -435,5 +434,4 @@ class CurveMetricDataModule(L.LightningDataModule):
         rank = trainer.global_rank if trainer is not None else 0
         start = trainer.global_step if trainer is not None else 0
         dataset = CurveMetricSamples(self.curve, self.num_samples, self.seed, rank, start)
-        return DataLoader(dataset, batch_size=None, num_workers=self.num_workers,
-                          persistent_workers=self.num_workers > 0)
+        return step_loader(dataset, self.num_workers, rank)

@@ -22,6 +22,7 @@ import json
 import logging
 import os
 import re
+import shlex
 import sys
 import time
 from contextlib import contextmanager, nullcontext
@@ -219,7 +220,7 @@ def build(cfg: DictConfig):
     return datamodule, module
 
 
-def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None:
+def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None = None) -> dict[str, Any] | None:
     """Trains and evaluates one run into ``out_dir`` (default: the run directory); returns its metrics
     (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (:func:`run_suite`).
 
@@ -235,10 +236,10 @@ def train(cfg: DictConfig, out_dir: Path | None = None) -> dict[str, Any] | None
         if cfg.get("suite"):
             run_suite(cfg, out_dir)
             return None
-        return _train_one(cfg, out_dir)
+        return _train_one(cfg, out_dir, resume_hint)
 
 
-def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
+def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None) -> dict[str, Any] | None:
     validate_config(cfg)
     keep_freed_memory()
     L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
@@ -270,8 +271,10 @@ def _train_one(cfg: DictConfig, out_dir: Path) -> dict[str, Any] | None:
         raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
     except SIGTERMException:
         name = preemption.signal_name
-        log.warning("Stopped by %s at step %d; %s holds it. Continue with ckpt_path=auto hydra.run.dir=%s.",
-                    "Ctrl-C" if name == "SIGINT" else name, trainer.global_step, last, out_dir)
+        if trainer.is_global_zero:
+            hint = resume_hint or f"Continue with ckpt_path=auto hydra.run.dir={out_dir}."
+            log.warning("Stopped by %s at step %d; %s holds it. %s", "Ctrl-C" if name == "SIGINT" else name,
+                        trainer.global_step, last, hint)
         raise SystemExit(130 if name == "SIGINT" else 143) from None
     # the final state, whatever step it ended on (periodic checkpoints may be older)
     trainer.save_checkpoint(last, weights_only=False)
@@ -321,7 +324,10 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
         member_dir = out_dir / name
         log.info("suite member %s: %s", name, " ".join(overrides))
         member_cfg = hydra.compose(config_name="train", overrides=overrides + [f"paths.output_dir={member_dir}"])
-        metrics = train(member_cfg, out_dir=member_dir)
+        command = " ".join(shlex.quote(o) for o in [*overrides, "ckpt_path=auto", f"hydra.run.dir={member_dir}"])
+        hint = (f"This suite member ({name}) continues alone with `python train.py {command}`; the suite's command "
+                "run again starts every member afresh.")
+        metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint)
         results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
     (out_dir / "suite.json").write_text(json.dumps(results, indent=2))
     report = cfg.suite.get("report") or "deepcurrents.experiments.tables.write_table"

@@ -155,7 +155,8 @@ class ResumeState(L.Callback):
 class PreemptionCheckpoint(L.Callback):
     """On SIGTERM (Lightning stops after the running step with SIGTERMException), SIGUSR1 (the signal SLURM
     sends ahead of a time limit with ``--signal=USR1@90``; handled here unless Lightning's own SLURM
-    auto-requeue handler has it) or Ctrl-C (SIGINT; a second Ctrl-C stops at once, without a checkpoint), writes
+    auto-requeue handler has it) or Ctrl-C (SIGINT, one process only; a second Ctrl-C stops at once, without a
+    checkpoint; one while the checkpoint is written waits for it), writes
     ``path`` (the run's ``checkpoints/last.ckpt``) after the running step and stops; ``signal_name`` says which.
     Other exceptions write nothing: after a NaN loss the last good checkpoint must stay."""
 
@@ -164,10 +165,14 @@ class PreemptionCheckpoint(L.Callback):
         self.saved_step: int | None = None
         self.signal_name = "SIGTERM"
         self._stop = False
+        self._saving = False
         self._previous: dict[int, Any] = {}
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         if signum == signal.SIGINT:
+            if self._saving:  # the checkpoint is being written: an interruption now would only lose it
+                log.warning("Ctrl-C: the checkpoint is being written; a moment.")
+                return
             if self._stop:  # pressed again: the user does not want to wait for the step
                 raise KeyboardInterrupt
             log.warning("Ctrl-C: stopping after this step and writing the checkpoint (Ctrl-C again stops at once, "
@@ -181,7 +186,9 @@ class PreemptionCheckpoint(L.Callback):
         usr1 = getattr(signal, "SIGUSR1", None)
         if usr1 is not None and signal.getsignal(usr1) in (signal.SIG_DFL, None):
             self._previous[usr1] = signal.signal(usr1, self._on_signal)
-        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where a caller handles Ctrl-C
+        # not where a caller handles Ctrl-C; nor under DDP, whose ranks would stop at steps of their own (Lightning's
+        # KeyboardInterrupt path stops them all at once, keeping the last periodic checkpoint)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler and trainer.world_size == 1:
             self._previous[signal.SIGINT] = signal.signal(signal.SIGINT, self._on_signal)
 
     def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any, batch: Any,
@@ -196,7 +203,11 @@ class PreemptionCheckpoint(L.Callback):
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
         if isinstance(exception, SIGTERMException):
-            trainer.save_checkpoint(self.path, weights_only=False)
+            self._saving = True
+            try:
+                trainer.save_checkpoint(self.path, weights_only=False)
+            finally:
+                self._saving = False
             self.saved_step = int(trainer.global_step)
             log.info("Stopped by %s at step %d; checkpoint written to %s.", self.signal_name, self.saved_step,
                      self.path)
