@@ -233,6 +233,11 @@ TRAIN_CASES = [
      r"model\.net\.widht is not a setting NeuralCurrent takes"),
     ("misspelt data key", overrides("experiment=minimal_trefoil", "+data.widht=3"),
      r"data\.widht is not a setting MinimalSurfaceDataModule takes"),
+    # in process (no Hydra command line to say which was added) every key of that name is named
+    ("added key with a namesake", overrides("experiment=minimal_trefoil", "+model.width=3"),
+     r"The key 'width' \(model\.net\.width or model\.width\) is not a setting CurrentModule takes"),
+    ("misspelt optimiser key", overrides("experiment=minimal_trefoil", "+model.optim.lrr=0.001"),
+     r"model\.optim\.lrr is not a setting of model\.optim"),
     # checkpoints to resume from
     ("resume missing", overrides("experiment=minimal_trefoil", "ckpt_path=/nonexistent/last.ckpt"), "does not exist"),
     ("resume text file", lambda tmp: ["experiment=minimal_trefoil",
@@ -381,6 +386,9 @@ CLI_CASES = [
     ("train: learning rate", lambda tmp: (TRAIN_COMMAND, [
         "experiment=minimal_trefoil", "logger=none", "model.optim.lr=-1", f"hydra.run.dir={tmp / 'run'}"]),
      "model.optim.lr"),
+    ("train: added key with a namesake", lambda tmp: (TRAIN_COMMAND, [
+        "experiment=minimal_trefoil", "logger=none", "+model.width=3", f"hydra.run.dir={tmp / 'run'}"]),
+     "error: model.width is not a setting CurrentModule takes"),
     ("extract: text checkpoint", lambda tmp: (
         "deepcurrents.extract", [f"ckpt_path={write(tmp / 'n.ckpt', 'notes')}"]), "n.ckpt"),
     ("render: no checkpoint given", lambda tmp: ("deepcurrents.render", []), "ckpt_path"),

@@ -78,42 +78,47 @@ def keep_freed_memory(threshold: int = MMAP_THRESHOLD) -> bool:
 
 def instantiate(node: DictConfig, **kwargs):
     """hydra.utils.instantiate, but a UserInputError raised inside a constructor comes out as itself
-    (Hydra wraps it in an InstantiationException with the target's traceback text), and a key that no
-    constructor takes (a misspelt one added with Hydra's ``+``) is one sentence naming it."""
+    (Hydra wraps it in an InstantiationException with the target's traceback text), and a key of the config that
+    a constructor does not take (a misspelt one added with Hydra's ``+``) is one sentence naming it."""
     try:
         return hydra.utils.instantiate(node, **kwargs)
     except InstantiationException as err:
         cause = err.__cause__
         while cause is not None and not isinstance(cause, UserInputError):
-            if isinstance(cause, TypeError):
-                unknown = re.search(r"([\w.]+)\(\) got an unexpected keyword argument '(\w+)'", str(cause))
-                if unknown is not None:
-                    raise ConfigError(unknown_key_message(node, *unknown.groups())) from None
+            unknown = re.search(r"([\w.]+)\.__init__\(\) got an unexpected keyword argument '([^']+)'", str(cause))
+            if isinstance(cause, TypeError) and unknown is not None:
+                message = unknown_key_message(node, *unknown.groups())
+                if message is not None:  # else no key of the config has that name: a programming error
+                    raise ConfigError(message) from None
             cause = cause.__cause__
         if cause is not None:
             raise cause from None
         raise
 
 
-def unknown_key_message(node: DictConfig, target: str, name: str) -> str:
-    """One sentence for a key ``name`` under ``node`` that ``target``'s constructor does not take."""
-    prefix = node._get_full_key(None) or ""
-    paths = []
+def unknown_key_message(node: DictConfig, owner: str, name: str) -> str | None:
+    """One sentence for a key ``name`` under ``node`` that ``owner``'s constructor does not take: the key
+    added with ``+`` on the command line where Hydra knows it, else every key of that name under ``node``; None
+    when there is none (the argument did not come from the config)."""
+    paths: list[str] = []
 
-    def walk(value, path):
+    def walk(value, path: str) -> None:
+        if path.rsplit(".", 1)[-1] == name:
+            paths.append(path)
         if isinstance(value, dict):
             for key, child in value.items():
                 walk(child, f"{path}.{key}" if path else str(key))
-            if path.rsplit(".", 1)[-1] == name:
-                paths.append(path)
-        elif path.rsplit(".", 1)[-1] == name:
-            paths.append(path)
 
-    walk(OmegaConf.to_container(node, resolve=False), prefix)
-    where = " or ".join(paths) or name
-    owner = target.removesuffix(".__init__")
-    return (f"{where} is not a setting {owner} takes (a misspelt key, or one added with '+' that "
-            "nothing reads); `python train.py … --cfg job` prints the settings there are.")
+    walk(OmegaConf.to_container(node, resolve=False), node._get_full_key(None) or "")
+    if not paths:
+        return None
+    if HydraConfig.initialized():  # the keys the command line added: the culprit among same-named ones
+        added = {o.lstrip("+").split("=", 1)[0] for o in HydraConfig.get().overrides.task if o.startswith("+")}
+        paths = [p for p in paths if p in added] or paths
+    tail = "a misspelt key, or one added with '+' that nothing reads); `--cfg job` prints the settings there are."
+    if len(paths) == 1:
+        return f"{paths[0]} is not a setting {owner} takes ({tail}"
+    return f"The key '{name}' ({' or '.join(paths)}) is not a setting {owner} takes ({tail}"
 
 
 def output_dir(cfg: DictConfig) -> Path:

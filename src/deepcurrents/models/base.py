@@ -72,6 +72,10 @@ def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None,
     return kwargs
 
 
+# the settings of model.optim that configure_optimizers and the schedules read
+OPTIM_KEYS = ("lr", "step_size", "gamma", "schedule", "warmup", "min_factor", "fused", "betas")
+
+
 class DeepCurrentsModule(L.LightningModule):
     """Base class of every model kind. Subclasses define ``training_step`` and ``final_evaluation``.
 
@@ -88,6 +92,10 @@ class DeepCurrentsModule(L.LightningModule):
     def __init__(self, optim: dict[str, Any] | None):
         super().__init__()
         if optim is not None:
+            unknown = sorted(set(optim) - set(OPTIM_KEYS))
+            if unknown:  # read by name: a misspelt key (+model.optim.lrr=1e-3) would be ignored without a word
+                raise ConfigError(f"model.optim.{unknown[0]} is not a setting of model.optim (its settings: "
+                                  f"{', '.join(OPTIM_KEYS)}).")
             # a word where a number belongs is the same one sentence (not a ValueError inside Hydra's call)
             number_at_least("model.optim.lr", optim["lr"], strict=True)
             number_at_least("model.optim.step_size", optim["step_size"], 1.0)  # steps (1e4 from the command line)
