@@ -538,10 +538,31 @@ def plot(rows: list[dict], path: Path, threshold: float) -> None:
     plt.close(fig)
 
 
+FIELDS = ["curve", "heldout", "recipe", "steps", "seconds", "train_seconds", "cpu_seconds", "mass_area",
+          "mass_area_stderr", "exact", "ratio", "mesh_area", "mesh_error", "mesh_seconds", "sharpened_ratio",
+          "sharpened_ratio_stderr", "final_ratio", "final_ratio_stderr", "final_mesh_error", "evaluation_seconds",
+          "load_before", "load_after"]
+
+
+def write_rows(rows: list[dict], path: Path) -> None:
+    """The scored copies as CSV, one row each (the columns of FIELDS)."""
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def override_value(text: str) -> str:
+    """``text`` quoted as a Hydra override value, so that a path with '=', ',' or spaces stays one value."""
+    return "'" + text.replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
 def output_stem(out: str) -> Path:
     """``--out`` as the stem the files are written to: a plain name under benchmarks/results/, or a path (with a
     folder, relative to the working directory). Its folder is made and checked now, before any training, so that
     a run's results are never lost to a folder that cannot be written at the end."""
+    if not out or out.endswith(("/", os.sep)) or Path(out).name in (".", ".."):
+        raise SystemExit(f"error: --out {out!r} must name the files' stem (a name, or a path ending in one).")
     stem = Path(out).expanduser() if Path(out).name != out else RESULTS / out
     try:
         stem.parent.mkdir(parents=True, exist_ok=True)
@@ -628,15 +649,18 @@ def main() -> None:
         torch.set_num_threads(args.threads)
 
     recipes = resolve_recipes(RECIPES, args.recipe, args.recipes)
-    stem = output_stem(args.out)
     rows: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         known = curves(Path(tmp))
+        builtin = set(known)
         for group in ("curves", "heldout"):  # own curves (PATH=AREA) by their file's stem; unknown names now
             names = []
             for spec in getattr(args, group):
                 if spec not in known and "=" in spec:
                     name, known_as = own_curve(spec)
+                    if name in known and (name in builtin or known[name] != known_as):
+                        ap.error(f"curve {spec!r}: the name {name!r} (its file's stem) is taken by "
+                                 f"{'a built-in curve' if name in builtin else known[name][0]}; rename the file.")
                     known[name] = known_as
                     spec = name
                 elif spec not in known:
@@ -644,6 +668,7 @@ def main() -> None:
                              "as PATH=AREA (its exact minimal area).")
                 names.append(spec)
             setattr(args, group, names)
+        stem = output_stem(args.out)
         if args.fidelity:
             rows = fidelity(args.fidelity)
             shown = sorted({*range(0, len(rows), max(1, len(rows) // 10)), len(rows) - 1})  # every tenth and the last
@@ -674,7 +699,7 @@ def main() -> None:
             rotated = order[ci % len(order):] + order[: ci % len(order)]
             for recipe in rotated:
                 load0 = os.getloadavg()[0]
-                module, cfg, copies = train_recipe(["experiment=minimal_curve", f"data.curve={path}",
+                module, cfg, copies = train_recipe(["experiment=minimal_curve", f"data.curve={override_value(path)}",
                                                     *recipes[recipe]], args.seconds, args.copies, args.steps,
                                                     trainer=args.trainer)
                 load1 = os.getloadavg()[0]
@@ -696,15 +721,10 @@ def main() -> None:
                 print(f"{name:16s} {recipe:10s} {last['steps']:6d} steps in {last['seconds']:6.1f} s "
                       f"(cpu {last['cpu_seconds']:6.1f} s): mass/exact {last['ratio']:.4f} "
                       f"± {last['mass_area_stderr'] / exact:.4f}{mesh}  [load {load0:.1f}→{load1:.1f}]", flush=True)
+                write_rows(rows, with_suffix(stem, ".csv"))  # after every run: a later failure keeps these
 
-    fields = ["curve", "heldout", "recipe", "steps", "seconds", "train_seconds", "cpu_seconds", "mass_area",
-              "mass_area_stderr", "exact", "ratio", "mesh_area", "mesh_error", "mesh_seconds", "sharpened_ratio",
-              "sharpened_ratio_stderr", "final_ratio", "final_ratio_stderr", "final_mesh_error", "evaluation_seconds",
-              "load_before", "load_after"]
-    with open(with_suffix(stem, ".csv"), "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
+    fields = FIELDS
+    write_rows(rows, with_suffix(stem, ".csv"))
     plot(rows, with_suffix(stem, ".png"), args.threshold[-1])
 
     summary: dict = {}

@@ -161,11 +161,15 @@ def test_a_curve_of_your_own_with_its_exact_area_runs_through_the_benchmark(tmp_
     ttq = load_benchmark("time_to_quality")
     t = 2 * np.pi * np.arange(120) / 120
     ring = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), 0 * t], -1) + [0.1, 0.0, 0.05]
+    odd = tmp_path / "a=b,c d"  # characters a Hydra override would split on: the value is quoted
+    odd.mkdir()
+    np.savetxt(odd / "ring.txt", ring)
     np.savetxt(tmp_path / "ring.txt", ring)
+    np.savetxt(tmp_path / "circle05.txt", ring)
     exact = ttq.polygon_area(ring)
     out = tmp_path / "new" / "mine"
     monkeypatch.setattr("sys.argv", ["time_to_quality.py", "--steps", "3", "--copies", "1", "--mass-samples", "4096",
-                                     "--recipes", "cpu", "--curves", f"{tmp_path / 'ring.txt'}={exact}",
+                                     "--recipes", "cpu", "--curves", f"{odd / 'ring.txt'}={exact}",
                                      "--out", str(out), "--threads", "1"])
     ttq.main()
     rows = list(csv.DictReader(open(tmp_path / "new" / "mine.csv")))
@@ -180,6 +184,9 @@ def test_a_curve_of_your_own_with_its_exact_area_runs_through_the_benchmark(tmp_
         (["--seconds", "-3"], "--seconds -3.0 must be greater than 0"),
         (["--mass-samples", "0"], "--mass-samples 0 must be greater than 0"),
         (["--copies", "0"], "--copies 0 must be greater than 0"),
+        (["--curves", f"{tmp_path / 'circle05.txt'}=0.3"], "is taken by a built-in curve"),
+        (["--curves", f"{odd / 'ring.txt'}=0.3", f"{tmp_path / 'ring.txt'}=0.3"], "is taken by"),
+        (["--out", ""], "must name the files' stem"),
     ]:
         monkeypatch.setattr("sys.argv", ["time_to_quality.py", *argv])
         with pytest.raises(SystemExit) as info:

@@ -17,6 +17,8 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.callbacks import RichProgressBar
+from lightning.pytorch.callbacks.progress.rich_progress import _RICH_AVAILABLE
 
 from deepcurrents.errors import positive_int
 from deepcurrents.eval.plots import figure_pixels
@@ -40,21 +42,18 @@ def _wandb_loggers(trainer: L.Trainer) -> list:
 
 
 
-def progress_bar() -> L.Callback | None:
+class StepProgressBar(RichProgressBar):
     """Lightning's rich progress bar, its task named "Training" instead of "Epoch 0/-2": a run here is one epoch
-    of ``max_steps`` batches with ``max_epochs=-1``, which the stock bar prints as its last epoch, -2. None where
-    rich is missing (Lightning's tqdm bar then says "Epoch 0", which reads right)."""
-    from lightning.pytorch.callbacks import RichProgressBar
-    from lightning.pytorch.callbacks.progress.rich_progress import _RICH_AVAILABLE
+    of ``max_steps`` batches with ``max_epochs=-1``, which the stock bar prints as its last epoch, -2."""
 
-    if not _RICH_AVAILABLE:
-        return None
+    def _get_train_description(self, current_epoch: int) -> str:
+        return f"{'Training':{len(self.validation_description)}}"
 
-    class StepProgressBar(RichProgressBar):
-        def _get_train_description(self, current_epoch: int) -> str:
-            return f"{'Training':{len(self.validation_description)}}"
 
-    return StepProgressBar()
+def progress_bar() -> L.Callback | None:
+    """The run's progress bar: a ``StepProgressBar``, or None where rich is missing (Lightning's tqdm bar then
+    says "Epoch 0", which reads right)."""
+    return StepProgressBar() if _RICH_AVAILABLE else None
 
 class MediaCallback(L.Callback):
     """Renders of the current during and after training.
