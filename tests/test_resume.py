@@ -132,6 +132,32 @@ def test_preemption_signal_writes_a_checkpoint_and_resume_reaches_the_same_weigh
     assert_same_weights(uninterrupted, out / "checkpoints" / "last.ckpt")
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_a_signal_to_a_ddp_runs_process_group_stops_every_rank_after_one_step(tmp_path, signum):
+    """trainer=ddp_cpu, the signal sent to the whole process group (a terminal's Ctrl-C, `timeout`, a scheduler):
+    the second rank gets SIGTERM twice (from the group and from rank 0's launcher), which hung Lightning's own
+    handler; here every rank stops after the same step (a max-reduce of their flags), last.ckpt holds that step
+    and the run says once how to continue."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, str(ROOT / "train.py"), *RUN, "trainer=ddp_cpu", f"hydra.run.dir={out}"],
+                            cwd=ROOT, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    wait_for(out / "checkpoints" / "last.ckpt", proc)
+    first = torch.load(out / "checkpoints/last.ckpt", weights_only=True)["global_step"]
+    os.killpg(proc.pid, signum)
+    try:
+        said, err = proc.communicate(timeout=90)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail("the DDP run hung after the signal")
+    assert proc.returncode == (130 if signum == signal.SIGINT else 143), (said + err)[-2000:]
+    assert (said + err).count("Continue with ckpt_path=auto") == 1, (said + err)[-2000:]
+    stopped = torch.load(out / "checkpoints/last.ckpt", weights_only=True)["global_step"]
+    assert first <= stopped < STEPS and not (out / "metrics.json").exists()
+
+
 LOADER_BOUND = """
 import sys, time
 import lightning as L, torch

@@ -161,12 +161,17 @@ class ResumeState(L.Callback):
 
 
 class PreemptionCheckpoint(L.Callback):
-    """On SIGTERM (Lightning stops after the running step with SIGTERMException), SIGUSR1 (the signal SLURM
-    sends ahead of a time limit with ``--signal=USR1@90``; handled here unless Lightning's own SLURM
-    auto-requeue handler has it) or Ctrl-C (SIGINT, one process only; a second Ctrl-C stops at once, without a
-    checkpoint; one while the checkpoint is written waits for it), writes
-    ``path`` (the run's ``checkpoints/last.ckpt``) after the running step and stops; ``signal_name`` says which.
-    Other exceptions write nothing: after a NaN loss the last good checkpoint must stay."""
+    """On SIGTERM (preemption, ``scancel``), SIGUSR1 (the signal SLURM sends ahead of a time limit with
+    ``--signal=USR1@90``; handled here unless Lightning's own SLURM auto-requeue handler has it) or Ctrl-C (SIGINT;
+    a second Ctrl-C stops a single process at once, without a checkpoint; one while the checkpoint is written
+    waits for it), writes ``path`` (the run's ``checkpoints/last.ckpt``) after the running step and stops with
+    SIGTERMException; ``signal_name`` says which signal. Other exceptions write nothing: after a NaN loss the last
+    good checkpoint must stay.
+
+    Under DDP every rank stops after the same step: the ranks' flags are max-reduced at the end of each step (one
+    tiny collective), and SIGTERM is handled here instead of by Lightning, whose handler broadcasts from inside
+    the signal handler and hung a two-process run whose second rank got the signal twice (from the process group
+    and from rank 0's launcher)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
@@ -174,6 +179,7 @@ class PreemptionCheckpoint(L.Callback):
         self.signal_name = "SIGTERM"
         self._stop = False
         self._saving = False
+        self._distributed = False
         self._previous: dict[int, Any] = {}
 
     def _on_signal(self, signum: int, frame: Any) -> None:
@@ -181,32 +187,47 @@ class PreemptionCheckpoint(L.Callback):
             if self._saving:  # the checkpoint is being written: an interruption now would only lose it
                 log.warning("Ctrl-C: the checkpoint is being written; a moment.")
                 return
-            if self._stop:  # pressed again: the user does not want to wait for the step
-                raise KeyboardInterrupt
-            log.warning("Ctrl-C: stopping after this step and writing the checkpoint (Ctrl-C again stops at once, "
-                        "losing the steps since the last checkpoint).")
-        self.signal_name = signal.Signals(signum).name
+            if self._stop and not self._distributed:  # pressed again: the user does not want to wait for the step
+                raise KeyboardInterrupt  # (not under DDP: one rank leaving mid-step would hang the others)
+            log.warning("Ctrl-C: stopping after this step and writing the checkpoint%s.",
+                        "" if self._distributed else " (Ctrl-C again stops at once, losing the steps since the last "
+                        "checkpoint)")
+        if not self._stop:
+            self.signal_name = signal.Signals(signum).name
         self._stop = True  # acted on at the end of the running step
+
+    def _take(self, signum: int) -> None:
+        self._previous[signum] = signal.signal(signum, self._on_signal)
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if threading.current_thread() is not threading.main_thread():
             return
+        self._distributed = trainer.world_size > 1 and torch.distributed.is_available() \
+            and torch.distributed.is_initialized()
         usr1 = getattr(signal, "SIGUSR1", None)
         if usr1 is not None and signal.getsignal(usr1) in (signal.SIG_DFL, None):
-            self._previous[usr1] = signal.signal(usr1, self._on_signal)
-        # not where a caller handles Ctrl-C; nor under DDP, whose ranks would stop at steps of their own (Lightning's
-        # KeyboardInterrupt path stops them all at once, keeping the last periodic checkpoint)
-        if signal.getsignal(signal.SIGINT) is signal.default_int_handler and trainer.world_size == 1:
-            self._previous[signal.SIGINT] = signal.signal(signal.SIGINT, self._on_signal)
+            self._take(usr1)
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:  # not where a caller handles Ctrl-C
+            self._take(signal.SIGINT)
+        if self._distributed:
+            self._take(signal.SIGTERM)
 
     def on_train_batch_end(self, trainer: L.Trainer, pl_module: L.LightningModule, outputs: Any, batch: Any,
                            batch_idx: int) -> None:
-        if self._stop:
+        stop = self._stop
+        if self._distributed:  # one rank's signal stops them all, after this same step
+            flag = torch.tensor([float(stop)], device=trainer.strategy.root_device)
+            torch.distributed.all_reduce(flag, op=torch.distributed.ReduceOp.MAX)
+            stop = bool(flag.item())
+            if stop and not self._stop:
+                self.signal_name, self._stop = "a signal to another rank", True
+        if stop:
             raise SIGTERMException()
 
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         for signum, previous in self._previous.items():
-            signal.signal(signum, previous)
+            if signal.getsignal(signum) == self._on_signal:  # unless another hand has set it since
+                signal.signal(signum, previous)
         self._previous = {}
 
     def on_exception(self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException) -> None:
@@ -217,5 +238,6 @@ class PreemptionCheckpoint(L.Callback):
             finally:
                 self._saving = False
             self.saved_step = int(trainer.global_step)
-            log.info("Stopped by %s at step %d; checkpoint written to %s.", self.signal_name, self.saved_step,
-                     self.path)
+            if trainer.is_global_zero:
+                log.info("Stopped by %s at step %d; checkpoint written to %s.", self.signal_name, self.saved_step,
+                         self.path)
