@@ -252,6 +252,31 @@ def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     assert len(table) == 4 and table[0].startswith("| run | mass_area |")  # header, rule, two trials
 
 
+@pytest.mark.slow
+def test_a_sweep_job_that_fails_ends_that_job_not_the_sweep(tmp_path):
+    """A multirun with an impossible value among its options: the other jobs run (the failed one used to stop the
+    sweep, with no table even for the jobs before it), table.md lists them and the failed job with its sentence,
+    the job folder keeps the sentence in error.txt, and the multirun ends with one sentence and status 2."""
+    sweep = tmp_path / "sweep"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), "-m", "experiment=minimal_trefoil", "model.optim.lr=-1,3e-3",
+         "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=2", "trainer.enable_progress_bar=false",
+         "trainer.enable_model_summary=false", "data.num_samples=32", "model.rff.num_frequencies=8",
+         "model.net.width=8", "model.net.depth=1", "evaluation.mass_samples=1024", "evaluation.mesh.resolution=12",
+         "callbacks.media=null", f"hydra.sweep.dir={sweep}"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    assert (sweep / "1" / "metrics.json").is_file() and not (sweep / "0" / "metrics.json").exists()
+    assert (sweep / "0" / "error.txt").read_text().strip() == "model.optim.lr=-1 must be positive."
+    table = (sweep / "table.md").read_text()
+    assert "\n| 1 |" in table  # the one job that ran (named by its number: nothing differs among those that ran)
+    assert "- 0: model.optim.lr=-1: model.optim.lr=-1 must be positive." in table
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: 1 of 2 sweep jobs failed (job 0: model.optim.lr=-1 must be positive)"), last
+
+
 def test_evaluate_draws_the_mass_as_the_run_did_with_the_mesh_cells_refined(tmp_path):
     """evaluation.mass_refine_mesh=true: the run's final evaluation and the evaluate app both refine the cells of the
     current's mesh (made first), so the app gives back the run's own loss."""

@@ -3,28 +3,52 @@ run (or a suite of runs) into Hydra's run directory; user errors end in one sent
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import hydra
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig
 
 from deepcurrents.cli.common import exit_on_user_error
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
+from deepcurrents.experiments.multirun import FAILED_JOB_FILE
 from deepcurrents.experiments.runner import train
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[3] / "conf")
 
 
 def run_cli(cfg: DictConfig) -> float | None:
-    """Runs :func:`train`, turning user errors into one sentence and a non-zero exit (no traceback).
+    """Runs :func:`train`, turning user errors into one sentence and a non-zero exit (no traceback). In a
+    multirun a job's user error (or NaN loss) ends that job, not the sweep (:func:`failed_job`).
 
     Returns the value an Optuna sweep minimises (``cfg.objective``), if set.
     """
-    metrics = exit_on_user_error(train, cfg)
+    if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        try:
+            metrics = train(cfg)
+        except (UserInputError, NonFiniteLossError) as err:
+            return failed_job(err, cfg)
+    else:
+        metrics = exit_on_user_error(train, cfg)
     objective = cfg.get("objective")
     if metrics is not None and objective:
         return exit_on_user_error(objective_value, metrics, str(objective))
     return None
+
+
+def failed_job(err: Exception, cfg: DictConfig) -> float | None:
+    """A sweep job that stopped on a user error or a NaN loss (a learning rate too high among those swept): its
+    sentence goes to stderr and to the job folder's ``error.txt``, which the sweep's table lists
+    (experiments.multirun, which also ends the multirun with status 2); the other jobs run. An Optuna trial
+    scores +inf."""
+    job = HydraConfig.get()
+    text = " ".join(str(err).split())
+    print(f"error: job {job.job.num} ({' '.join(job.overrides.task)}): {text}", file=sys.stderr)
+    Path(job.runtime.output_dir).mkdir(parents=True, exist_ok=True)
+    (Path(job.runtime.output_dir) / FAILED_JOB_FILE).write_text(text + "\n")
+    return float("inf") if cfg.get("objective") else None
 
 
 def objective_value(metrics: dict, objective: str) -> float:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,25 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 log = logging.getLogger(__name__)
+
+
+FAILED_JOB_FILE = "error.txt"  # the sentence a sweep job stopped on (cli.train.failed_job)
+
+
+def failed_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
+    """Each job of a sweep that stopped on a user error or a NaN loss: its number, overrides and sentence."""
+    jobs = []
+    for path in Path(sweep_dir).glob(f"*/{FAILED_JOB_FILE}"):
+        overrides_path = path.parent / ".hydra" / "overrides.yaml"
+        overrides = list(OmegaConf.load(overrides_path)) if overrides_path.is_file() else []
+        jobs.append({"num": path.parent.name, "overrides": [str(o) for o in overrides],
+                     "error": path.read_text().strip()})
+    return sorted(jobs, key=_job_order)
+
+
+def _job_order(job: dict[str, Any]) -> tuple:
+    """Numeric job directories in numeric order, others after them."""
+    return (not job["num"].isdigit(), int(job["num"]) if job["num"].isdigit() else 0, job["num"])
 
 
 def collect_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
@@ -34,10 +54,7 @@ def collect_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
             continue
         jobs.append({"num": job_dir.name, "dir": str(job_dir), "overrides": [str(o) for o in overrides],
                      "metrics": metrics})
-    def order(job):  # numeric job directories in numeric order, others after them
-        return (not job["num"].isdigit(), int(job["num"]) if job["num"].isdigit() else 0, job["num"])
-
-    return sorted(jobs, key=order)
+    return sorted(jobs, key=_job_order)
 
 
 def write_multirun_table(sweep_dir: str | Path, objective: str | None = None) -> list[dict[str, Any]]:
@@ -63,10 +80,24 @@ def write_multirun_table(sweep_dir: str | Path, objective: str | None = None) ->
 
 
 class MultirunTable(Callback):
-    """Hydra callback: the table of a multirun's results, written when the multirun ends."""
+    """Hydra callback: the table of a multirun's results, written when the multirun ends. Jobs that stopped on a
+    user error are listed under it, and the multirun then ends with one sentence and status 2."""
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
         rows = write_multirun_table(sweep_dir, config.get("objective"))
+        failed = failed_jobs(sweep_dir)
+        if failed and rows:
+            common = set.intersection(*(set(j["overrides"]) for j in [*collect_jobs(sweep_dir), *failed]))
+            with open(sweep_dir / "table.md", "a") as fh:
+                fh.write("\nFailed jobs:\n\n")
+                for j in failed:
+                    fh.write(f"- {j['num']}: {' '.join(o for o in j['overrides'] if o not in common)}: {j['error']}\n")
         if rows:
             log.info("%d runs side by side: %s", len(rows), sweep_dir / "table.md")
+        if failed:
+            first = failed[0]
+            where = f"; the other {len(rows)} are in {sweep_dir / 'table.md'}" if rows else ""
+            print(f"error: {len(failed)} of {len(failed) + len(rows)} sweep jobs failed (job {first['num']}: "
+                  f"{first['error'].rstrip('.')}){where}.", file=sys.stderr)
+            sys.exit(2)
