@@ -237,3 +237,28 @@ def test_a_2d_reconstruction_gets_its_metric_picture_from_the_render_app(tmp_pat
                                   cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert sorted(p.name for p in (tmp_path / "pictures").iterdir()) == ["render.png", "render_metric.png"]
+
+
+def test_final_media_log_the_mesh_picture_and_the_3d_mesh_under_keys_of_their_own(tmp_path, monkeypatch):
+    """MediaCallback.on_final_evaluation with W&B: the render, mesh.png, the mesh as a 3D object and the metrics
+    each under its own key (mesh.png and the 3D mesh shared "media/final_mesh", so the picture was never logged)."""
+    from types import SimpleNamespace
+
+    from conftest import QUIET_CPU, TINY_EVAL, TINY_NET, compose_cfg
+
+    import deepcurrents.models.callbacks as callbacks
+    from deepcurrents.experiments.runner import train
+    from deepcurrents.models.loading import load_module
+
+    out = tmp_path / "run"
+    metrics = train(compose_cfg(["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL,
+                                 "trainer.max_steps=2"]), out_dir=out)
+    assert (out / "mesh.png").is_file() and (out / "mesh.ply").is_file()
+    logged = []
+    fake = SimpleNamespace(experiment=SimpleNamespace(log=lambda media, step: logged.append(media)))
+    monkeypatch.setattr(callbacks, "_wandb_loggers", lambda trainer: [fake])
+    media = callbacks.MediaCallback(final=True, size=24, samples=4, grid=8)
+    module = load_module(out / "checkpoints" / "last.ckpt")
+    media.on_final_evaluation(SimpleNamespace(is_global_zero=True, datamodule=None), module, metrics, out)
+    (keys,) = [set(m) for m in logged]
+    assert keys == {"media/final_render", "media/final_mesh_picture", "media/final_mesh", "media/final_metrics"}

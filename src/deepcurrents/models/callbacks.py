@@ -41,7 +41,6 @@ def _wandb_loggers(trainer: L.Trainer) -> list:
     return [lg for lg in trainer.loggers if isinstance(lg, WandbLogger)]
 
 
-
 class StepProgressBar(RichProgressBar):
     """Lightning's rich progress bar, its task named "Training" instead of "Epoch 0/-2": a run here is one epoch
     of ``max_steps`` batches with ``max_epochs=-1``, which the stock bar prints as its last epoch, -2."""
@@ -139,9 +138,9 @@ class MediaCallback(L.Callback):
         media: dict[str, Any] = {}
         if image is not None:
             media["media/final_render"] = wandb.Image(image)
-        for name in ("mesh.png", "current.png"):
+        for name in ("mesh.png", "current.png"):  # pictures under their own keys: "final_mesh" is the 3D object
             if (out_dir / name).is_file():
-                media[f"media/final_{Path(name).stem}"] = wandb.Image(str(out_dir / name))
+                media[f"media/final_{Path(name).stem}_picture"] = wandb.Image(str(out_dir / name))
         if (out_dir / "mesh.ply").is_file():
             mesh = trimesh.load(out_dir / "mesh.ply", force="mesh", process=False)
             if len(mesh.faces):
