@@ -158,9 +158,10 @@ def resume_path(ckpt_path: str | None, out_dir: Path) -> Path | None:
         ckpt_path = "auto"
     if str(ckpt_path) == "auto":
         found = newest_checkpoint(out_dir)
-        if found is None:
-            log.info("ckpt_path=auto: no checkpoint in %s yet; starting from step 0.", out_dir)
-        else:
-            log.info("ckpt_path=auto: resuming from %s.", found)
+        if is_global_rank_zero():  # said once, not by every DDP rank
+            if found is None:
+                log.info("ckpt_path=auto: no checkpoint in %s yet; starting from step 0.", out_dir)
+            else:
+                log.info("ckpt_path=auto: resuming from %s.", found)
         return found
     return Path(str(ckpt_path)).expanduser()
