@@ -233,15 +233,19 @@ def test_slurm_launcher_composes():
     assert launcher.params["partition"] == "gpu" and launcher.params["gpus_per_node"] == 1
 
 
+# a multirun's jobs at a few seconds each
+TINY_SWEEP = ["experiment=minimal_trefoil", "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=2",
+              "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false", "data.num_samples=32",
+              "model.rff.num_frequencies=8", "model.net.width=8", "model.net.depth=1", "evaluation.mass_samples=1024",
+              "evaluation.mesh.resolution=12", "callbacks.media=null"]
+
+
 @pytest.mark.slow
 def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     sweep = tmp_path / "sweep"
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "train.py"), "-m", "hparams_search=minimal_optuna", "experiment=minimal_trefoil",
-         "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=2", "trainer.enable_progress_bar=false",
-         "trainer.enable_model_summary=false", "data.num_samples=32", "model.rff.num_frequencies=8",
-         "model.net.width=8", "model.net.depth=1", "evaluation.mass_samples=1024", "evaluation.mesh.resolution=12",
-         "callbacks.media=null", "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={sweep}"],
+        [sys.executable, str(ROOT / "train.py"), "-m", "hparams_search=minimal_optuna", *TINY_SWEEP,
+         "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={sweep}"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -259,11 +263,8 @@ def test_a_sweep_job_that_fails_ends_that_job_not_the_sweep(tmp_path):
     the job folder keeps the sentence in error.txt, and the multirun ends with one sentence and status 2."""
     sweep = tmp_path / "sweep"
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "train.py"), "-m", "experiment=minimal_trefoil", "model.optim.lr=-1,3e-3",
-         "logger=none", "preset=cpu", "trainer=cpu", "trainer.max_steps=2", "trainer.enable_progress_bar=false",
-         "trainer.enable_model_summary=false", "data.num_samples=32", "model.rff.num_frequencies=8",
-         "model.net.width=8", "model.net.depth=1", "evaluation.mass_samples=1024", "evaluation.mesh.resolution=12",
-         "callbacks.media=null", f"hydra.sweep.dir={sweep}"],
+        [sys.executable, str(ROOT / "train.py"), "-m", *TINY_SWEEP, "model.optim.lr=-1,3e-3",
+         f"hydra.sweep.dir={sweep}"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )
     assert proc.returncode == 2, proc.stderr[-2000:]
@@ -275,6 +276,19 @@ def test_a_sweep_job_that_fails_ends_that_job_not_the_sweep(tmp_path):
     assert "- 0: model.optim.lr=-1: model.optim.lr=-1 must be positive." in table
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("error: 1 of 2 sweep jobs failed (job 0: model.optim.lr=-1 must be positive)"), last
+
+
+def test_a_job_that_succeeded_after_an_earlier_failure_is_not_counted_failed(tmp_path):
+    """A requeued job, or a sweep run again into the same folder, keeps an earlier attempt's error.txt beside its
+    metrics.json: it is a result, not a failure (the cli also clears error.txt when a job starts)."""
+    from deepcurrents.experiments.multirun import failed_jobs
+
+    sentence = "model.optim.lr=-1 must be positive."
+    for num, files in (("0", ("metrics.json", "error.txt")), ("1", ("error.txt",))):
+        (tmp_path / num).mkdir()
+        for name in files:
+            (tmp_path / num / name).write_text("{}" if name == "metrics.json" else sentence)
+    assert [j["num"] for j in failed_jobs(tmp_path)] == ["1"]
 
 
 def test_evaluate_draws_the_mass_as_the_run_did_with_the_mesh_cells_refined(tmp_path):

@@ -187,6 +187,7 @@ def test_a_curve_of_your_own_with_its_exact_area_runs_through_the_benchmark(tmp_
         (["--curves", f"{tmp_path / 'circle05.txt'}=0.3"], "is taken by a built-in curve"),
         (["--curves", f"{odd / 'ring.txt'}=0.3", f"{tmp_path / 'ring.txt'}=0.3"], "is taken by"),
         (["--out", ""], "must name the files' stem"),
+        (["--out", "."], "must name the files' stem"),
     ]:
         monkeypatch.setattr("sys.argv", ["time_to_quality.py", *argv])
         with pytest.raises(SystemExit) as info:

@@ -9,7 +9,7 @@ from pathlib import Path
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
@@ -26,6 +26,8 @@ def run_cli(cfg: DictConfig) -> float | None:
     Returns the value an Optuna sweep minimises (``cfg.objective``), if set.
     """
     if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        # a requeued job or a sweep run again into the same folder: an earlier attempt's failure is not this one's
+        (Path(HydraConfig.get().runtime.output_dir) / FAILED_JOB_FILE).unlink(missing_ok=True)
         try:
             metrics = train(cfg)
         except (UserInputError, NonFiniteLossError) as err:
@@ -41,14 +43,17 @@ def run_cli(cfg: DictConfig) -> float | None:
 def failed_job(err: Exception, cfg: DictConfig) -> float | None:
     """A sweep job that stopped on a user error or a NaN loss (a learning rate too high among those swept): its
     sentence goes to stderr and to the job folder's ``error.txt``, which the sweep's table lists
-    (experiments.multirun, which also ends the multirun with status 2); the other jobs run. An Optuna trial
-    scores +inf."""
+    (experiments.multirun, which also ends a grid sweep with status 2); the other jobs run. An Optuna trial scores
+    the worst value there is for its direction."""
     job = HydraConfig.get()
     text = " ".join(str(err).split())
     print(f"error: job {job.job.num} ({' '.join(job.overrides.task)}): {text}", file=sys.stderr)
     Path(job.runtime.output_dir).mkdir(parents=True, exist_ok=True)
     (Path(job.runtime.output_dir) / FAILED_JOB_FILE).write_text(text + "\n")
-    return float("inf") if cfg.get("objective") else None
+    if not cfg.get("objective"):
+        return None
+    direction = OmegaConf.select(job.sweeper, "direction", default="minimize")
+    return float("-inf") if str(direction).lower() == "maximize" else float("inf")  # the worst value either way
 
 
 def objective_value(metrics: dict, objective: str) -> float:

@@ -37,19 +37,24 @@ def step_generators(seed: int, rank: int, start_step: int) -> Iterator[tuple[int
         step += workers
 
 
+STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGUSR1") if hasattr(signal, name))
+
+
 def loader_worker_init(worker_id: int, rank: int = 0) -> None:
-    """A loader worker ignores Ctrl-C, which a terminal sends to the whole process group: the main process stops
-    after its running step and writes a checkpoint (models.checkpointing.PreemptionCheckpoint), and a worker that
-    died of it would leave that step without its batch. Seeds the worker as Lightning would
+    """A loader worker ignores the signals that stop a run (Ctrl-C, SIGTERM, SIGUSR1), which a terminal, `timeout`
+    or SLURM send to every process of the job: the main process stops after its running step and writes a
+    checkpoint (models.checkpointing.PreemptionCheckpoint), and a worker that died of the signal would leave that
+    step without its batch (the workers end with the main process). Seeds the worker as Lightning would
     (``seed_everything(workers=True)``), whose own init function a loader with one does not get."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
     if int(os.environ.get("PL_SEED_WORKERS", 0)):
         pl_worker_init_function(worker_id, rank=rank)
 
 
 def step_loader(dataset: IterableDataset, num_workers: int, rank: int) -> DataLoader:
     """The DataLoader of a stream of whole batches (``batch_size=None``; one batch a training step), its workers
-    kept alive between epochs and deaf to Ctrl-C (``loader_worker_init``)."""
+    kept alive between epochs and deaf to the stop signals (``loader_worker_init``)."""
     init = functools.partial(loader_worker_init, rank=rank) if num_workers > 0 else None
     return DataLoader(dataset, batch_size=None, num_workers=num_workers, persistent_workers=num_workers > 0,
                       worker_init_fn=init)

@@ -24,9 +24,12 @@ FAILED_JOB_FILE = "error.txt"  # the sentence a sweep job stopped on (cli.train.
 
 
 def failed_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
-    """Each job of a sweep that stopped on a user error or a NaN loss: its number, overrides and sentence."""
+    """Each job of a sweep that stopped on a user error or a NaN loss (and wrote no metrics.json after all): its
+    number, overrides and sentence."""
     jobs = []
     for path in Path(sweep_dir).glob(f"*/{FAILED_JOB_FILE}"):
+        if (path.parent / "metrics.json").is_file():
+            continue
         overrides_path = path.parent / ".hydra" / "overrides.yaml"
         overrides = list(OmegaConf.load(overrides_path)) if overrides_path.is_file() else []
         jobs.append({"num": path.parent.name, "overrides": [str(o) for o in overrides],
@@ -81,7 +84,8 @@ def write_multirun_table(sweep_dir: str | Path, objective: str | None = None) ->
 
 class MultirunTable(Callback):
     """Hydra callback: the table of a multirun's results, written when the multirun ends. Jobs that stopped on a
-    user error are listed under it, and the multirun then ends with one sentence and status 2."""
+    user error are listed under it, and a grid sweep then ends with one sentence and status 2 (an Optuna search with
+    a warning: its failed trials scored the worst value, and the best parameters stand)."""
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
@@ -98,6 +102,10 @@ class MultirunTable(Callback):
         if failed:
             first = failed[0]
             where = f"; the other {len(rows)} are in {sweep_dir / 'table.md'}" if rows else ""
-            print(f"error: {len(failed)} of {len(failed) + len(rows)} sweep jobs failed (job {first['num']}: "
-                  f"{first['error'].rstrip('.')}){where}.", file=sys.stderr)
+            text = (f"{len(failed)} of {len(failed) + len(rows)} sweep jobs failed (job {first['num']}: "
+                    f"{first['error'].rstrip('.')}){where}.")
+            if config.get("objective") and rows:  # a search: failed trials scored the worst value, the rest stand
+                log.warning(text)
+                return
+            print(f"error: {text}", file=sys.stderr)
             sys.exit(2)

@@ -109,16 +109,26 @@ def unknown_key_message(node: DictConfig, owner: str, name: str) -> str | None:
             for key, child in value.items():
                 walk(child, f"{path}.{key}" if path else str(key))
 
-    walk(OmegaConf.to_container(node, resolve=False), node._get_full_key(None) or "")
+    tree = OmegaConf.to_container(node, resolve=False)
+    walk(tree, node._get_full_key(None) or "")
     if not paths:
         return None
-    if HydraConfig.initialized():  # the keys the command line added: the culprit among same-named ones
+    if len(paths) > 1 and HydraConfig.initialized():  # the keys the command line added: the culprit among namesakes
         added = {o.lstrip("+").split("=", 1)[0] for o in HydraConfig.get().overrides.task if o.startswith("+")}
         paths = [p for p in paths if p in added] or paths
+    if len(paths) > 1:  # the one beside the owner's own _target_, if that tells them apart
+        prefix = node._get_full_key(None) or ""
+
+        def target_beside(path: str) -> str:
+            parent = path[len(prefix):].lstrip(".").rpartition(".")[0]
+            return str(OmegaConf.select(node, f"{parent}._target_" if parent else "_target_", default="") or "")
+
+        beside = [p for p in paths if target_beside(p).endswith(owner)]
+        paths = beside if len(beside) == 1 else paths
     tail = "a misspelt key, or one added with '+' that nothing reads); `--cfg job` prints the settings there are."
     if len(paths) == 1:
         return f"{paths[0]} is not a setting {owner} takes ({tail}"
-    return f"The key '{name}' ({' or '.join(paths)}) is not a setting {owner} takes ({tail}"
+    return f"A key named '{name}' is not a setting {owner} takes ({tail}"
 
 
 def output_dir(cfg: DictConfig) -> Path:
@@ -330,8 +340,8 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
         log.info("suite member %s: %s", name, " ".join(overrides))
         member_cfg = hydra.compose(config_name="train", overrides=overrides + [f"paths.output_dir={member_dir}"])
         command = " ".join(shlex.quote(o) for o in [*overrides, "ckpt_path=auto", f"hydra.run.dir={member_dir}"])
-        hint = (f"This suite member ({name}) continues alone with `python train.py {command}`; the suite's command "
-                "run again starts every member afresh.")
+        hint = (f"The suite continues with its command and ckpt_path=auto hydra.run.dir={out_dir} (each member from "
+                f"its own checkpoint), or this member ({name}) alone with `python train.py {command}`.")
         metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint)
         results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
     (out_dir / "suite.json").write_text(json.dumps(results, indent=2))

@@ -179,6 +179,7 @@ class PreemptionCheckpoint(L.Callback):
         self.signal_name = "SIGTERM"
         self._stop = False
         self._saving = False
+        self._presses = 0
         self._distributed = False
         self._previous: dict[int, Any] = {}
 
@@ -187,11 +188,15 @@ class PreemptionCheckpoint(L.Callback):
             if self._saving:  # the checkpoint is being written: an interruption now would only lose it
                 log.warning("Ctrl-C: the checkpoint is being written; a moment.")
                 return
-            if self._stop and not self._distributed:  # pressed again: the user does not want to wait for the step
-                raise KeyboardInterrupt  # (not under DDP: one rank leaving mid-step would hang the others)
-            log.warning("Ctrl-C: stopping after this step and writing the checkpoint%s.",
-                        "" if self._distributed else " (Ctrl-C again stops at once, losing the steps since the last "
-                        "checkpoint)")
+            self._presses += 1
+            # pressed again: the user does not want to wait for the step. Under DDP only the third press (one rank
+            # leaving mid-step stops the others through Lightning's launcher, but a second press is often just
+            # impatience while every rank finishes its step)
+            if self._stop and self._presses >= (3 if self._distributed else 2):
+                raise KeyboardInterrupt
+            again = "a third Ctrl-C" if self._distributed else "Ctrl-C again"
+            log.warning("Ctrl-C: stopping after this step and writing the checkpoint (%s stops at once, losing the "
+                        "steps since the last checkpoint).", again)
         if not self._stop:
             self.signal_name = signal.Signals(signum).name
         self._stop = True  # acted on at the end of the running step
@@ -200,6 +205,7 @@ class PreemptionCheckpoint(L.Callback):
         self._previous[signum] = signal.signal(signum, self._on_signal)
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._stop, self._presses = False, 0  # a callback used for a second fit starts afresh
         if threading.current_thread() is not threading.main_thread():
             return
         self._distributed = trainer.world_size > 1 and torch.distributed.is_available() \
