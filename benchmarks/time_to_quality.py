@@ -553,8 +553,11 @@ def write_rows(rows: list[dict], path: Path) -> None:
 
 
 def override_value(text: str) -> str:
-    """``text`` quoted as a Hydra override value, so that a path with '=', ',' or spaces stays one value (paths with
-    a quote, a backslash or '${' are refused earlier, by ``own_curve``)."""
+    """``text`` quoted as a Hydra override value, so that a path with '=', ',' or spaces stays one value; one
+    sentence for a path no quoting hands over intact (a quote, a backslash, '${')."""
+    if any(c in text for c in ("'", "\\", "${")):
+        raise SystemExit(f"error: the curve file {text} has a quote, a backslash or '${{' in its path, which "
+                         "train.py's config cannot take; copy it to a plainer path.")
     return f"'{text}'"
 
 
@@ -562,7 +565,7 @@ def output_stem(out: str) -> Path:
     """``--out`` as the stem the files are written to: a plain name under benchmarks/results/, or a path (with a
     folder, relative to the working directory). Its folder is made and checked now, before any training, so that
     a run's results are never lost to a folder that cannot be written at the end."""
-    if not out or out.endswith(("/", os.sep)) or Path(out).name in ("", ".", ".."):
+    if not out or out.endswith(("/", os.sep, "/.", "/..")) or Path(out).name in ("", ".", ".."):
         raise SystemExit(f"error: --out {out!r} must name the files' stem (a name, or a path ending in one).")
     stem = Path(out).expanduser() if Path(out).name != out else RESULTS / out
     try:
@@ -593,9 +596,7 @@ def own_curve(spec: str) -> tuple[str, tuple[str, float]]:
                          "(e.g. my_circle.txt=0.2827), or one of the names in --help.")
     if not Path(path).expanduser().is_file():
         raise SystemExit(f"error: curve {spec!r}: the file {path} does not exist.")
-    if any(c in str(Path(path).expanduser().resolve()) for c in ("'", "\\", "${")):
-        raise SystemExit(f"error: curve {spec!r}: a path with a quote, a backslash or '${{' cannot be handed to "
-                         "train.py's config; copy the file to a plainer path.")
+    override_value(str(Path(path).expanduser().resolve()))  # refused now, before anything trains
     return Path(path).stem, (str(Path(path).expanduser().resolve()), exact)
 
 

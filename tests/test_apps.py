@@ -278,17 +278,62 @@ def test_a_sweep_job_that_fails_ends_that_job_not_the_sweep(tmp_path):
     assert last.startswith("error: 1 of 2 sweep jobs failed (job 0: model.optim.lr=-1 must be positive)"), last
 
 
-def test_a_job_that_succeeded_after_an_earlier_failure_is_not_counted_failed(tmp_path):
-    """A requeued job, or a sweep run again into the same folder, keeps an earlier attempt's error.txt beside its
-    metrics.json: it is a result, not a failure (the cli also clears error.txt when a job starts)."""
-    from deepcurrents.experiments.multirun import failed_jobs
+def test_a_jobs_last_attempt_decides_whether_it_failed(tmp_path):
+    """A requeued job, or a sweep run again into the same folder, keeps the other attempt's file: error.txt older
+    than metrics.json is a result (the cli also clears error.txt when a job starts), metrics.json older than
+    error.txt is a failure, not a row of the table."""
+    import os
+
+    from deepcurrents.experiments.multirun import collect_jobs, failed_jobs
 
     sentence = "model.optim.lr=-1 must be positive."
-    for num, files in (("0", ("metrics.json", "error.txt")), ("1", ("error.txt",))):
+    attempts = (("0", ("error.txt", "metrics.json")), ("1", ("metrics.json", "error.txt")), ("2", ("error.txt",)))
+    for num, order in attempts:
         (tmp_path / num).mkdir()
-        for name in files:
+        for t, name in enumerate(order):
             (tmp_path / num / name).write_text("{}" if name == "metrics.json" else sentence)
-    assert [j["num"] for j in failed_jobs(tmp_path)] == ["1"]
+            os.utime(tmp_path / num / name, (1000 + t, 1000 + t))
+    assert [j["num"] for j in failed_jobs(tmp_path)] == ["1", "2"]
+    assert [j["num"] for j in collect_jobs(tmp_path)] == ["0"]
+
+
+@pytest.mark.parametrize("sweeper, stops", [
+    ("hydra._internal.core_plugins.basic_sweeper.BasicSweeper", True),
+    ("hydra_plugins.hydra_optuna_sweeper.optuna_sweeper.OptunaSweeper", False),
+])
+def test_failed_jobs_end_a_grid_sweep_with_status_2_but_not_a_search(tmp_path, capsys, sweeper, stops):
+    """A grid sweep with a failed job ends with one sentence and status 2, whether or not it names an objective
+    (its column first); an Optuna search warns and ends normally, its failed trials scored the worst value."""
+    from deepcurrents.experiments.multirun import MultirunTable
+
+    for num, name, text in (("0", "error.txt", "model.optim.lr=-1 must be positive."),
+                            ("1", "metrics.json", json.dumps({"mass_area": 0.8}))):
+        (tmp_path / num).mkdir()
+        (tmp_path / num / name).write_text(text)
+    config = OmegaConf.create({"objective": "mass_area", "hydra": {"sweep": {"dir": str(tmp_path)},
+                                                                   "sweeper": {"_target_": sweeper}}})
+    if stops:
+        with pytest.raises(SystemExit) as info:
+            MultirunTable().on_multirun_end(config)
+        assert info.value.code == 2
+        assert "error: 1 of 2 sweep jobs failed (job 0: model.optim.lr=-1 must be positive)" in capsys.readouterr().err
+    else:
+        MultirunTable().on_multirun_end(config)
+    assert "- 0: " in (tmp_path / "table.md").read_text()
+
+
+@pytest.mark.parametrize("direction, worst", [("minimize", float("inf")), ("maximize", float("-inf")),
+                                              (["maximize"], float("-inf")), ("Direction.maximize", float("-inf")),
+                                              (None, float("inf"))])
+def test_a_failed_optuna_trial_scores_the_worst_value_for_the_direction(monkeypatch, direction, worst):
+    import deepcurrents.cli.train as cli_train
+
+    sweeper = OmegaConf.create({} if direction is None else {"direction": direction})
+    fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True),
+                                        "get": staticmethod(lambda: type("H", (), {"sweeper": sweeper})())})
+    monkeypatch.setattr(cli_train, "HydraConfig", fake)
+    assert cli_train.worst_value() == worst
+    assert cli_train.objective_value({"ucd": None}, "ucd") == worst  # an empty mesh's metric, written empty
 
 
 def test_evaluate_draws_the_mass_as_the_run_did_with_the_mesh_cells_refined(tmp_path):

@@ -193,6 +193,36 @@ except SIGTERMException:
 """
 
 
+LIVE_ITERATOR_AT_EXIT = """
+import sys, time
+import torch
+from torch.utils.data import IterableDataset
+import deepcurrents.data.ambient as ambient
+
+class Endless(IterableDataset):
+    def __iter__(self):
+        while True:
+            time.sleep(0.01)
+            yield torch.zeros(2)
+
+ambient.WORKER_TERM_GRACE = 1  # inherited by the forked workers
+batches = iter(ambient.step_loader(Endless(), 2, 0))
+next(batches)
+sys.exit(0)  # the iterator still alive: multiprocessing terminates the workers (SIGTERM) and waits for them
+"""
+
+
+def test_loader_workers_still_end_when_terminated_at_exit(tmp_path):
+    """Workers outlive a stop signal only for a while: a worker ignoring SIGTERM outright hung the interpreter's exit
+    whenever a loader iterator was still alive (multiprocessing terminates its children with SIGTERM, then waits)."""
+    script = tmp_path / "live_iterator.py"
+    script.write_text(LIVE_ITERATOR_AT_EXIT)
+    started = time.monotonic()
+    proc = subprocess.run([sys.executable, str(script)], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert time.monotonic() - started < 30
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGUSR1],
                          ids=["SIGINT", "SIGTERM", "SIGUSR1"])
 def test_a_stop_signal_to_the_process_group_spares_loader_workers_and_the_checkpoint(tmp_path, signum):

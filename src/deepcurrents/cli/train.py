@@ -9,7 +9,7 @@ from pathlib import Path
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
@@ -50,21 +50,29 @@ def failed_job(err: Exception, cfg: DictConfig) -> float | None:
     print(f"error: job {job.job.num} ({' '.join(job.overrides.task)}): {text}", file=sys.stderr)
     Path(job.runtime.output_dir).mkdir(parents=True, exist_ok=True)
     (Path(job.runtime.output_dir) / FAILED_JOB_FILE).write_text(text + "\n")
-    if not cfg.get("objective"):
-        return None
-    direction = OmegaConf.select(job.sweeper, "direction", default="minimize")
-    return float("-inf") if str(direction).lower() == "maximize" else float("inf")  # the worst value either way
+    return worst_value() if cfg.get("objective") else None
+
+
+def worst_value() -> float:
+    """The worst value for the Optuna sweeper's direction: +inf when it minimises (its default), -inf when it
+    maximises (``direction: maximize``, ``[maximize]`` or the sweeper's enum)."""
+    direction = OmegaConf.select(HydraConfig.get().sweeper, "direction", default="minimize") \
+        if HydraConfig.initialized() else "minimize"
+    if isinstance(direction, (list, tuple, ListConfig)):
+        direction = direction[0] if len(direction) == 1 else "minimize"
+    return float("-inf") if "maximize" in str(direction).lower() else float("inf")
 
 
 def objective_value(metrics: dict, objective: str) -> float:
-    """The metric an Optuna sweep minimises; +inf where the run wrote it empty (an empty mesh's ucd), one sentence
-    where the run writes no such metric (a typo, or ucd of a minimal surface): a search over inf finds nothing."""
+    """The metric an Optuna sweep optimises; the worst value where the run wrote it empty (an empty mesh's ucd), one
+    sentence where the run writes no such metric (a typo, or ucd of a minimal surface): a search over inf finds
+    nothing."""
     if objective not in metrics:
         written = sorted(k for k, v in metrics.items() if isinstance(v, (int, float)) and not isinstance(v, bool))
         raise ConfigError(f"objective={objective!r} is not a metric this run writes; it writes "
                           f"{', '.join(written)}.")
     value = metrics[objective]
-    return float(value) if value is not None else float("inf")
+    return float(value) if value is not None else worst_value()
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")

@@ -37,17 +37,27 @@ def step_generators(seed: int, rank: int, start_step: int) -> Iterator[tuple[int
         step += workers
 
 
-STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGUSR1") if hasattr(signal, name))
+# seconds a loader worker lives on after SIGTERM (see loader_worker_init)
+WORKER_TERM_GRACE = 20
+
+
+def _end_after_grace(signum: int, frame) -> None:
+    signal.alarm(WORKER_TERM_GRACE)  # SIGALRM's default action ends the worker then
 
 
 def loader_worker_init(worker_id: int, rank: int = 0) -> None:
-    """A loader worker ignores the signals that stop a run (Ctrl-C, SIGTERM, SIGUSR1), which a terminal, `timeout`
-    or SLURM send to every process of the job: the main process stops after its running step and writes a
-    checkpoint (models.checkpointing.PreemptionCheckpoint), and a worker that died of the signal would leave that
-    step without its batch (the workers end with the main process). Seeds the worker as Lightning would
-    (``seed_everything(workers=True)``), whose own init function a loader with one does not get."""
-    for signum in STOP_SIGNALS:
-        signal.signal(signum, signal.SIG_IGN)
+    """A loader worker outlives the signals that stop a run, which a terminal, `timeout` or SLURM send to every
+    process of the job: the main process stops after its running step and writes a checkpoint
+    (models.checkpointing.PreemptionCheckpoint), and a worker that died of the signal would leave that step without
+    its batch. Ctrl-C and SIGUSR1 are ignored (the workers end with the main process); SIGTERM ends the worker
+    ``WORKER_TERM_GRACE`` seconds later, not never, because PyTorch and multiprocessing end workers that will not
+    stop with SIGTERM and then wait for them. Seeds the worker as Lightning would (``seed_everything(workers=True)``),
+    whose own init function a loader with one does not get."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGUSR1"):
+        signal.signal(signal.SIGUSR1, signal.SIG_IGN)
+    if hasattr(signal, "SIGALRM"):
+        signal.signal(signal.SIGTERM, _end_after_grace)
     if int(os.environ.get("PL_SEED_WORKERS", 0)):
         pl_worker_init_function(worker_id, rank=rank)
 

@@ -23,12 +23,19 @@ log = logging.getLogger(__name__)
 FAILED_JOB_FILE = "error.txt"  # the sentence a sweep job stopped on (cli.train.failed_job)
 
 
+def job_failed(job_dir: Path) -> bool:
+    """Whether a job's last attempt failed: its error.txt is newer than its metrics.json, if it has one (a requeued
+    job or a sweep run again into the same folder keeps the other attempt's file)."""
+    error, metrics = job_dir / FAILED_JOB_FILE, job_dir / "metrics.json"
+    return error.is_file() and (not metrics.is_file() or error.stat().st_mtime >= metrics.stat().st_mtime)
+
+
 def failed_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
-    """Each job of a sweep that stopped on a user error or a NaN loss (and wrote no metrics.json after all): its
-    number, overrides and sentence."""
+    """Each job of a sweep whose last attempt stopped on a user error or a NaN loss: its number, overrides and
+    sentence."""
     jobs = []
     for path in Path(sweep_dir).glob(f"*/{FAILED_JOB_FILE}"):
-        if (path.parent / "metrics.json").is_file():
+        if not job_failed(path.parent):
             continue
         overrides_path = path.parent / ".hydra" / "overrides.yaml"
         overrides = list(OmegaConf.load(overrides_path)) if overrides_path.is_file() else []
@@ -43,11 +50,13 @@ def _job_order(job: dict[str, Any]) -> tuple:
 
 
 def collect_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
-    """Each job directory of a sweep that has ``metrics.json``: its number, Hydra overrides and metrics,
-    ordered by job number. Jobs without metrics (failed, or suites) are left out."""
+    """Each job directory of a sweep that has ``metrics.json`` from its last attempt: its number, Hydra overrides
+    and metrics, ordered by job number. Jobs without metrics (failed, or suites) are left out."""
     jobs = []
     for metrics_path in Path(sweep_dir).glob("*/metrics.json"):
         job_dir = metrics_path.parent
+        if job_failed(job_dir):  # an earlier attempt's metrics, not this one's
+            continue
         overrides_path = job_dir / ".hydra" / "overrides.yaml"
         overrides = list(OmegaConf.load(overrides_path)) if overrides_path.is_file() else []
         try:
@@ -104,7 +113,8 @@ class MultirunTable(Callback):
             where = f"; the other {len(rows)} are in {sweep_dir / 'table.md'}" if rows else ""
             text = (f"{len(failed)} of {len(failed) + len(rows)} sweep jobs failed (job {first['num']}: "
                     f"{first['error'].rstrip('.')}){where}.")
-            if config.get("objective") and rows:  # a search: failed trials scored the worst value, the rest stand
+            search = "optuna" in str(OmegaConf.select(config, "hydra.sweeper._target_", default="")).lower()
+            if search and rows:  # failed trials scored the worst value; the best parameters stand
                 log.warning(text)
                 return
             print(f"error: {text}", file=sys.stderr)
