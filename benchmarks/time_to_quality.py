@@ -673,6 +673,8 @@ def main() -> None:
                              "as PATH=AREA (its exact minimal area).")
                 names.append(spec)
             setattr(args, group, names)
+        for name in [*args.curves, *args.heldout]:  # every path handed to Hydra, checked before anything trains
+            override_value(known[name][0])
         stem = output_stem(args.out)
         if args.fidelity:
             rows = fidelity(args.fidelity)

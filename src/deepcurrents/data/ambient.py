@@ -37,26 +37,34 @@ def step_generators(seed: int, rank: int, start_step: int) -> Iterator[tuple[int
         step += workers
 
 
-# seconds a loader worker lives on after SIGTERM (see loader_worker_init)
-WORKER_TERM_GRACE = 20
+# seconds a loader worker lives on after SIGTERM (see loader_worker_init); DEEPCURRENTS_WORKER_TERM_GRACE overrides
+WORKER_TERM_GRACE = 60
 
 
 def _end_after_grace(signum: int, frame) -> None:
-    signal.alarm(WORKER_TERM_GRACE)  # SIGALRM's default action ends the worker then
+    remaining = signal.alarm(0)
+    signal.alarm(remaining or int(os.environ.get("DEEPCURRENTS_WORKER_TERM_GRACE", WORKER_TERM_GRACE)))
+
+
+def _end_now(signum: int, frame) -> None:
+    # a clean exit: PyTorch's SIGCHLD handler in the main process raises wherever it is for a worker killed by a signal
+    os._exit(0)
 
 
 def loader_worker_init(worker_id: int, rank: int = 0) -> None:
     """A loader worker outlives the signals that stop a run, which a terminal, `timeout` or SLURM send to every
     process of the job: the main process stops after its running step and writes a checkpoint
     (models.checkpointing.PreemptionCheckpoint), and a worker that died of the signal would leave that step without
-    its batch. Ctrl-C and SIGUSR1 are ignored (the workers end with the main process); SIGTERM ends the worker
-    ``WORKER_TERM_GRACE`` seconds later, not never, because PyTorch and multiprocessing end workers that will not
-    stop with SIGTERM and then wait for them. Seeds the worker as Lightning would (``seed_everything(workers=True)``),
-    whose own init function a loader with one does not get."""
+    its batch (PyTorch would even raise in the main process at once). Ctrl-C and SIGUSR1 are ignored (the workers end
+    with the main process); SIGTERM ends the worker ``WORKER_TERM_GRACE`` seconds after the first one, not never,
+    because multiprocessing ends the workers of a loader still alive at exit with SIGTERM and then waits for them.
+    Seeds the worker as Lightning would (``seed_everything(workers=True)``), whose own init function a loader with
+    one does not get."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     if hasattr(signal, "SIGUSR1"):
         signal.signal(signal.SIGUSR1, signal.SIG_IGN)
     if hasattr(signal, "SIGALRM"):
+        signal.signal(signal.SIGALRM, _end_now)
         signal.signal(signal.SIGTERM, _end_after_grace)
     if int(os.environ.get("PL_SEED_WORKERS", 0)):
         pl_worker_init_function(worker_id, rank=rank)
@@ -64,7 +72,7 @@ def loader_worker_init(worker_id: int, rank: int = 0) -> None:
 
 def step_loader(dataset: IterableDataset, num_workers: int, rank: int) -> DataLoader:
     """The DataLoader of a stream of whole batches (``batch_size=None``; one batch a training step), its workers
-    kept alive between epochs and deaf to the stop signals (``loader_worker_init``)."""
+    kept alive between epochs and outliving the stop signals a while (``loader_worker_init``)."""
     init = functools.partial(loader_worker_init, rank=rank) if num_workers > 0 else None
     return DataLoader(dataset, batch_size=None, num_workers=num_workers, persistent_workers=num_workers > 0,
                       worker_init_fn=init)

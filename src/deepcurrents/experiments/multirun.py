@@ -24,8 +24,9 @@ FAILED_JOB_FILE = "error.txt"  # the sentence a sweep job stopped on (cli.train.
 
 
 def job_failed(job_dir: Path) -> bool:
-    """Whether a job's last attempt failed: its error.txt is newer than its metrics.json, if it has one (a requeued
-    job or a sweep run again into the same folder keeps the other attempt's file)."""
+    """Whether a job's last finished attempt failed: its error.txt is newer than its metrics.json, if it has one (a
+    requeued job or a sweep run again into the same folder keeps the other attempt's file). An attempt killed before
+    it wrote either leaves the earlier attempt's result standing (its error.txt was cleared when it started)."""
     error, metrics = job_dir / FAILED_JOB_FILE, job_dir / "metrics.json"
     return error.is_file() and (not metrics.is_file() or error.stat().st_mtime >= metrics.stat().st_mtime)
 
