@@ -596,7 +596,6 @@ def own_curve(spec: str) -> tuple[str, tuple[str, float]]:
                          "(e.g. my_circle.txt=0.2827), or one of the names in --help.")
     if not Path(path).expanduser().is_file():
         raise SystemExit(f"error: curve {spec!r}: the file {path} does not exist.")
-    override_value(str(Path(path).expanduser().resolve()))  # refused now, before anything trains
     return Path(path).stem, (str(Path(path).expanduser().resolve()), exact)
 
 
@@ -730,7 +729,6 @@ def main() -> None:
                       f"± {last['mass_area_stderr'] / exact:.4f}{mesh}  [load {load0:.1f}→{load1:.1f}]", flush=True)
                 write_rows(rows, with_suffix(stem, ".csv"))  # after every run: a later failure keeps these
 
-    fields = FIELDS
     write_rows(rows, with_suffix(stem, ".csv"))
     plot(rows, with_suffix(stem, ".png"), args.threshold[-1])
 
@@ -747,7 +745,7 @@ def main() -> None:
             summary.setdefault(str(threshold), {})[name] = times
     with_suffix(stem, ".json").write_text(json.dumps({
         "args": vars(args), "machine": platform.processor() or platform.machine(), "threads": torch.get_num_threads(),
-        "time_to_threshold": summary, "final": [{k: r.get(k) for k in fields} for r in rows
+        "time_to_threshold": summary, "final": [{k: r.get(k) for k in FIELDS} for r in rows
                                                 if r is max((q for q in rows if q["curve"] == r["curve"]
                                                              and q["recipe"] == r["recipe"]),
                                                             key=lambda q: q["seconds"])]}, indent=2))

@@ -48,8 +48,9 @@ def failed_job(err: Exception, cfg: DictConfig) -> float | None:
     job = HydraConfig.get()
     text = " ".join(str(err).split())
     print(f"error: job {job.job.num} ({' '.join(job.overrides.task)}): {text}", file=sys.stderr)
-    Path(job.runtime.output_dir).mkdir(parents=True, exist_ok=True)
-    (Path(job.runtime.output_dir) / FAILED_JOB_FILE).write_text(text + "\n")
+    job_dir = Path(job.runtime.output_dir)
+    job_dir.mkdir(parents=True, exist_ok=True)
+    (job_dir / FAILED_JOB_FILE).write_text(text + "\n")
     return worst_value() if cfg.get("objective") else None
 
 

@@ -38,11 +38,15 @@ def failed_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
     for path in Path(sweep_dir).glob(f"*/{FAILED_JOB_FILE}"):
         if not job_failed(path.parent):
             continue
-        overrides_path = path.parent / ".hydra" / "overrides.yaml"
-        overrides = list(OmegaConf.load(overrides_path)) if overrides_path.is_file() else []
-        jobs.append({"num": path.parent.name, "overrides": [str(o) for o in overrides],
+        jobs.append({"num": path.parent.name, "overrides": job_overrides(path.parent),
                      "error": path.read_text().strip()})
     return sorted(jobs, key=_job_order)
+
+
+def job_overrides(job_dir: Path) -> list[str]:
+    """The Hydra overrides a sweep job ran with (its .hydra/overrides.yaml; none if it has not got that far)."""
+    path = job_dir / ".hydra" / "overrides.yaml"
+    return [str(o) for o in OmegaConf.load(path)] if path.is_file() else []
 
 
 def _job_order(job: dict[str, Any]) -> tuple:
@@ -58,14 +62,12 @@ def collect_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
         job_dir = metrics_path.parent
         if job_failed(job_dir):  # an earlier attempt's metrics, not this one's
             continue
-        overrides_path = job_dir / ".hydra" / "overrides.yaml"
-        overrides = list(OmegaConf.load(overrides_path)) if overrides_path.is_file() else []
         try:
             metrics = json.loads(metrics_path.read_text())
         except json.JSONDecodeError:
             log.warning("%s is not valid JSON; left out of the table.", metrics_path)
             continue
-        jobs.append({"num": job_dir.name, "dir": str(job_dir), "overrides": [str(o) for o in overrides],
+        jobs.append({"num": job_dir.name, "dir": str(job_dir), "overrides": job_overrides(job_dir),
                      "metrics": metrics})
     return sorted(jobs, key=_job_order)
 

@@ -97,9 +97,11 @@ def instantiate(node: DictConfig, **kwargs):
 
 
 def unknown_key_message(node: DictConfig, owner: str, name: str) -> str | None:
-    """One sentence for a key ``name`` under ``node`` that ``owner``'s constructor does not take: the key
-    added with ``+`` on the command line where Hydra knows it, else every key of that name under ``node``; None
-    when there is none (the argument did not come from the config)."""
+    """One sentence for a key ``name`` under ``node`` that ``owner``'s constructor does not take, naming it where it
+    can be told from its namesakes (the one added with ``+`` on the command line, else the one beside ``owner``'s own
+    ``_target_``), never a valid one; None when no key under ``node`` has that name (the argument did not come from
+    the config)."""
+    prefix = node._get_full_key(None) or ""
     paths: list[str] = []
 
     def walk(value, path: str) -> None:
@@ -109,16 +111,13 @@ def unknown_key_message(node: DictConfig, owner: str, name: str) -> str | None:
             for key, child in value.items():
                 walk(child, f"{path}.{key}" if path else str(key))
 
-    tree = OmegaConf.to_container(node, resolve=False)
-    walk(tree, node._get_full_key(None) or "")
+    walk(OmegaConf.to_container(node, resolve=False), prefix)
     if not paths:
         return None
     if len(paths) > 1 and HydraConfig.initialized():  # the keys the command line added: the culprit among namesakes
         added = {o.lstrip("+").split("=", 1)[0] for o in HydraConfig.get().overrides.task if o.startswith("+")}
         paths = [p for p in paths if p in added] or paths
     if len(paths) > 1:  # the one beside the owner's own _target_, if that tells them apart
-        prefix = node._get_full_key(None) or ""
-
         def target_beside(path: str) -> str:
             parent = path[len(prefix):].lstrip(".").rpartition(".")[0]
             return str(OmegaConf.select(node, f"{parent}._target_" if parent else "_target_", default="") or "")

@@ -54,6 +54,7 @@ def progress_bar() -> L.Callback | None:
     says "Epoch 0", which reads right)."""
     return StepProgressBar() if _RICH_AVAILABLE else None
 
+
 class MediaCallback(L.Callback):
     """Renders of the current during and after training.
 
