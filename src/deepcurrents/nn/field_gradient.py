@@ -22,7 +22,8 @@ three-column products run on (N, K) arrays (v by d broadcast passes: MKL's (N, 3
 output) and ḡ_0 is written once, by one broadcast pass over φ as [sin ⊙ v, cos ⊙ v]: the two products that read it
 take the swap of its halves and the sign on W_1's side (``_swap_halves``). The first layer's wide arrays (φ, g_0,
 ḡ_0) and h, v are kept transposed, (2K, N) and (K, N), so that every elementwise pass over them reads and writes
-contiguous blocks; the products read them as transposed views at the same rate.
+contiguous blocks; the products read them as transposed views at the same rate. The (2K, N) arrays' rows are padded
+(``_padded_rows``): rows a power of two apart slowed the products that read them.
 
 Why not forward-mode tangents (value and 3 tangents stacked as one (4N, width) GEMM per layer): they cost 4
 GEMMs of each layer forward and 8 backward, 12 against these 5-6, and the wide first layer dominates
@@ -187,6 +188,16 @@ def _activation(z: torch.Tensor, spec: tuple[str, float, float]) -> torch.Tensor
     return nn.functional.softplus(z, beta, threshold)
 
 
+ROW_PADDING = 64
+
+
+def _padded_rows(like: torch.Tensor, rows: int, cols: int) -> torch.Tensor:
+    """An uninitialised (rows, cols) array whose rows lie ``ROW_PADDING`` elements apart beyond ``cols``: the first
+    layer's (2K, N) arrays. With N a power of two (the paper's 4096 samples) rows 16 KiB apart map onto the same
+    cache sets, and MKL's products that read them ran 2 % slower in a paper step (benchmarks/README)."""
+    return like.new_empty(rows, cols + ROW_PADDING)[:, :cols]
+
+
 def _swap_halves(w: torch.Tensor, k: int, inverse: bool = False) -> torch.Tensor:
     """The columns [w_sin, w_cos, w_rest] of a (W, 2K + G) array as [−w_cos, w_sin, w_rest], so that
     [sin ⊙ v, cos ⊙ v] @ swap(w)ᵀ = [cos ⊙ v, −sin ⊙ v] @ wᵀ; ``inverse``: [w_cos, −w_sin, w_rest]. A new,
@@ -229,7 +240,7 @@ class _FieldGradient(torch.autograd.Function):
             # read, contiguous (K, N) blocks (ATen's vectorised sin into the strided half of an (N, 2K) array is
             # 1.8× slower); the products take φ as a transposed view at the same rate (benchmarks/README)
             proj = scaled.T @ x.T  # (K, N)
-            a_t = x.new_empty(base + width, x.shape[0])
+            a_t = _padded_rows(x, base + width, x.shape[0])
             torch.sin(proj, out=a_t[:k])
             torch.cos(proj, out=a_t[k:base])
             del proj
@@ -265,7 +276,7 @@ class _FieldGradient(torch.autograd.Function):
                 curvature = torch.addcmul(deltas[layer], s, deltas[layer], value=-1.0)
                 curvatures[layer] = curvature.mul_(spec[1]) if spec[1] != 1.0 else curvature
             if layer == 0 and freqs is not None:  # g_0ᵀ = W_1ᵀ δ_1ᵀ (2K + G, N), in φᵀ's layout
-                g = (weights[0].T @ deltas[0].T).T
+                g = torch.mm(weights[0].T, deltas[0].T, out=_padded_rows(x, weights[0].shape[1], x.shape[0])).T
             else:
                 g = deltas[layer] @ weights[layer]
         g_extra = None
@@ -322,7 +333,7 @@ class _FieldGradient(torch.autograd.Function):
             swapped = freqs is not None
             if swapped:
                 k = freqs.shape[0]
-                phi_t = inputs[0].T  # φᵀ (2K + G, N), contiguous (the forward's layout)
+                phi_t = inputs[0].T  # φᵀ (2K + G, N), rows padded (the forward's layout)
                 # vᵀ = 2π B ω̄ᵀ (K, N) as d broadcast passes: MKL's product with an inner dimension of three is
                 # bound by writing its output, and these passes write vᵀ once
                 scaled = scaled_frequencies(freqs)
@@ -333,8 +344,8 @@ class _FieldGradient(torch.autograd.Function):
                 # ḡ_0 = [cos ⊙ v, −sin ⊙ v] is written as its halves swapped and unsigned, [sin ⊙ v, cos ⊙ v], and
                 # transposed like φ: one broadcast pass over φᵀ; the two products that read it take the swap and
                 # the sign on their (W, 2K) sides instead (_swap_halves)
-                g_bar_t = v_t.new_empty(base + (0 if extra_jac is None else extra_jac.shape[1]), v_t.shape[1])
-                torch.mul(phi_t[:base].view(2, k, -1), v_t, out=g_bar_t[:base].view(2, k, -1))
+                g_bar_t = _padded_rows(v_t, base + (0 if extra_jac is None else extra_jac.shape[1]), v_t.shape[1])
+                torch.mul(phi_t[:base].unflatten(0, (2, k)), v_t, out=g_bar_t[:base].unflatten(0, (2, k)))
                 del v_t
                 if extra_jac is not None:  # ḡ_e = J_e ω̄
                     g_bar_t[base:] = torch.bmm(extra_jac, omega_bar).squeeze(-1).T
