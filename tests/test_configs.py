@@ -146,7 +146,8 @@ COLUMNS = ("trainer.max_steps", "model.optim.step_size", "model.optim.lr", "mode
 # step_size is then unused); and families under preset=cpu mesh at 80 in a cube of padding 0.5 (was 64 and 0.1:
 # σ = 4 shapes bulge out of the smaller cube; preset_sizes/data/cpu_family.yaml), except heads, which keep 64
 # with the former settings (preset_sizes/data/cpu_family_heads.yaml); and hands under preset=cpu train 3000 steps of
-# 256 + 256 points instead of 1500 of 512 + 512 (README "Half the points, twice the steps"), heads keep the latter.
+# 256 + 256 points instead of 1500 of 512 + 512 (docs/notes/families.md "Half the points, twice the steps"), heads
+# keep the latter.
 # recon_part stands for every recon_<part> alias (tested below).
 # Columns in the order of COLUMNS; '-': the key is absent.
 LENGTHS_TABLE = """

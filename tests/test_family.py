@@ -472,10 +472,12 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         assert cfg.model.rff.num_frequencies == 1024 and cfg.model.net.width == 256 and cfg.model.surface_weight == 1
         cpu = compose_cfg([f"experiment={name}", "preset=cpu", "trainer=ddp_cpu"])
         assert cpu.data.max_meshes == 4 and cpu.model.net.width == 128
-        # README "Half the points, twice the steps": hands 3000 steps of 256 + 256 points, heads 1500 of 512 + 512
+        # docs/notes/families.md "Half the points, twice the steps": hands 3000 steps of 256 + 256 points, heads 1500
+        # of 512 + 512
         steps, points = (3000, 256) if name == "latent_hands" else (1500, 512)
         assert cpu.trainer.max_steps == steps and cpu.data.num_samples == cpu.data.num_surface_samples == points
-        # the held-out fit's code prior: measured on hands only (README "Half the points, twice the steps")
+        # the held-out fit's code prior: measured on hands only (docs/notes/families.md "Half the points, twice the
+        # steps")
         assert cpu.model.latent_fit.prior_weight == (1e-3 if name == "latent_hands" else 0.0)
         assert cfg.model.latent_fit.prior_weight == 0.0  # preset=paper: the paper's plain fit
         assert cfg.evaluation.mesh.padding == 0.1
@@ -483,7 +485,7 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         if name == "latent_hands":
             # README "Families of surfaces": σ = 3, meshed in a cube that holds bulges
             assert cpu.model.rff.sigma == 3
-            # README "σ = 3, slow codes and the cosine"
+            # docs/notes/families.md "σ = 3, slow codes and the cosine"
             assert cpu.model.latent_lr_factor == 0.1 and cpu.model.optim.schedule == "cosine"
             assert (cpu.model.optim.warmup, cpu.model.optim.min_factor) == (0.02, 0.01)
             assert cpu.evaluation.mesh.padding == 0.5 and cpu.evaluation.mesh.resolution == 80
@@ -498,10 +500,12 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
         # scalings left the hands blobs in the CPU's steps), and the level that follows f along Γ
         assert cpu.data.augment and cpu.data.rotation_deg == 0 and cpu.data.shift == 0
         assert list(cpu.data.scale_range) == [1, 1] and list(cpu.data.mesh_scale_range) == [0.7, 1.43]
-        assert cpu.evaluation.mesh.level_blend == 0.1  # README "Why wrists were left open"
-        assert cpu.model.surface_margin == 0.005  # README "Where the fog sits", "The heads' hinge margin"
+        assert cpu.evaluation.mesh.level_blend == 0.1  # docs/notes/families.md "Why wrists were left open"
+        # docs/notes/families.md "Where the fog sits", "The heads' hinge margin"
+        assert cpu.model.surface_margin == 0.005
         assert cfg.evaluation.mesh.level_blend == 0  # preset=paper: the paper's one level
-        # hands: f in a window of two jumps (README "A window on f"); heads and the paper: f unbounded
+        # hands: f in a window of two jumps (docs/notes/families.md "A window on f"); heads and the paper: f
+        # unbounded
         assert cpu.model.net.f_turns == (2.0 if name == "latent_hands" else 0) and cfg.model.net.f_turns == 0
 
 
