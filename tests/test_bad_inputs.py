@@ -109,7 +109,10 @@ def cap_cloud(normals: str = "outward") -> np.ndarray:
     n = cap().face_normals[faces]
     if normals == "zero":
         n = np.zeros_like(n)
-    return np.hstack([points, n])
+    rows = np.hstack([points, n])
+    if normals == "nan point":
+        rows[3, 0] = np.nan
+    return rows
 
 
 def overrides(*items: str) -> Callable[[Path], list[str]]:
@@ -150,6 +153,8 @@ TRAIN_CASES = [
     ("points without curve", point_cloud(cap_cloud(), curve=None), "data.curve"),
     ("points far from curve", point_cloud(cap_cloud(), curve="far"), "far.txt"),
     ("points zero normals", point_cloud(cap_cloud("zero")), "normal"),
+    # a NaN coordinate was blamed on the normals
+    ("points NaN coordinate", point_cloud(cap_cloud("nan point")), r"NaN or infinite coordinates \(first in point 3\)"),
     # configuration values
     ("lr zero", overrides("experiment=minimal_trefoil", "model.optim.lr=0"), r"model\.optim\.lr"),
     ("gamma above one", overrides("experiment=minimal_trefoil", "model.optim.gamma=1.5"), r"model\.optim\.gamma"),
@@ -207,6 +212,9 @@ TRAIN_CASES = [
     ("sampling power a word", overrides("experiment=minimal_trefoil", "data.sampling.kind=importance",
                                         "+data.sampling.power=steep"), r"data\.sampling\.power=steep"),
     ("family shift a word", overrides("experiment=latent_hands", "data.shift=far"), r"data\.shift=far"),
+    # torch's "normal expects std >= 0.0" inside Hydra's instantiate error before (exit status 1)
+    ("family code std negative", lambda tmp: cap_family(tmp, "model.latent_std=-1"),
+     r"model\.latent_std=-1 must be non-negative"),
     ("sampling share a word", overrides("experiment=minimal_trefoil", "data.sampling.kind=importance",
                                         "data.sampling.uniform_fraction=half"),
      r"data\.sampling\.uniform_fraction=half must be in \(0, 1\]"),

@@ -613,6 +613,29 @@ def test_resuming_with_the_codes_at_another_rate_group_is_one_sentence(trained, 
     assert not (tmp_path / "run" / "checkpoints").exists()
 
 
+@pytest.mark.slow
+def test_resuming_a_run_at_its_budget_trains_nothing_says_so_and_writes_strict_json(trained, tmp_path, caplog):
+    """A family checkpoint resumed with trainer.max_steps at its step: no step runs, a warning says so before and
+    after fitting, and metrics.json holds "loss": null (was the non-JSON token NaN: no training loss this process)."""
+    import logging
+
+    from deepcurrents.experiments.runner import train
+
+    out, _, _ = trained
+    resume = f"ckpt_path={out / 'checkpoints' / 'last.ckpt'}"
+    cfg = compose_cfg(tiny_overrides(trained_dir(out), tmp_path / "run", STEPS) + [resume])
+    with caplog.at_level(logging.WARNING):
+        metrics = train(cfg, out_dir=tmp_path / "run")
+    assert metrics["steps"] == STEPS and metrics["loss"] is None
+    assert f"at step {STEPS}, which trainer.max_steps={STEPS} does not exceed" in caplog.text
+    assert "No step was trained" in caplog.text
+
+    def refuse(token):
+        raise AssertionError(f"metrics.json holds {token}, which is not JSON")
+    written = json.loads((tmp_path / "run" / "metrics.json").read_text(), parse_constant=refuse)
+    assert written["loss"] is None and written["ucd"] == pytest.approx(metrics["ucd"])
+
+
 def brute_force_border_hausdorff(mesh: trimesh.Trimesh, loops: list[np.ndarray], step: float = 5e-4) -> float:
     """Hausdorff distance between a mesh's border edges and closed loops, by dense points on both sides
     and all pairwise distances (independent of the package's polyline code)."""

@@ -289,7 +289,34 @@ def test_make_dataset_refuses_no_bodies_and_an_unwritable_folder_before_generati
     blocker.write_text("not a folder")
     with pytest.raises(SystemExit) as err:
         main(["--num", "1", "--out", str(blocker / "data")])
-    assert str(err.value.code).startswith(f"error: --out='{blocker / 'data'}' cannot be created")
+    assert err.value.code == 2
+    assert capsys.readouterr().err.startswith(f"error: --out='{blocker / 'data'}' cannot be created")
+
+
+@pytest.mark.parametrize("fault", ["words in the labels", "an unreadable mesh", "no segmentation", "no root"])
+def test_make_dataset_refuses_bad_faust_files_in_one_sentence_and_leaves_no_folder(tmp_path, capsys, fault):
+    """FAUST files from elsewhere: words in the label file (numpy's ValueError before), a mesh that is not one
+    (trimesh's), a missing label file or root end with one sentence naming the file and status 2, as argparse's
+    own errors do, and the refused run leaves no empty --out folder behind."""
+    write_faust_fixture(tmp_path)
+    seg = tmp_path / "segs" / "train" / "faust" / "faust_corrected.txt"
+    root, named = tmp_path, seg
+    if fault == "words in the labels":
+        seg.write_text("hello world\n" + seg.read_text())
+    elif fault == "an unreadable mesh":
+        named = tmp_path / "meshes" / "train" / "faust" / "tr_reg_001.ply"
+        named.write_text("garbage")
+    elif fault == "no segmentation":
+        seg.unlink()
+    else:
+        root = named = tmp_path / "missing"
+    out = tmp_path / "out" / "data"
+    with pytest.raises(SystemExit) as err:
+        main(["--source", "faust", "--faust-root", str(root), "--out", str(out), "--categories", "hands"])
+    message = capsys.readouterr().err
+    assert err.value.code == 2 and message.startswith("error: ") and str(named) in message
+    assert "Traceback" not in message and len(message.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
 
 
 def test_snapping_never_pinches_a_saddle():

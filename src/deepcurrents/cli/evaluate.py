@@ -16,7 +16,6 @@ the run's own mesh.ply) and move into the model's frame, where the numbers are c
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 
@@ -34,6 +33,7 @@ from deepcurrents.eval.metrics import (
     mass_estimate_settings,
     mass_to_area,
     mesh_summary,
+    metrics_json,
     unidirectional_chamfer,
 )
 from deepcurrents.geometry.meshes import read_mesh
@@ -126,14 +126,14 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
                 metrics.update(ucd=ucd, ucd_reverse=reverse, chamfer=0.5 * (ucd + reverse))
                 if frame is not None:
                     metrics["ucd_input_units"] = ucd * frame[0]
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    (out / "metrics.json").write_text(metrics_json(metrics))
     return metrics
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     metrics = run_app(evaluate_checkpoint, cfg)
-    print(json.dumps(metrics, indent=2))
+    print(metrics_json(metrics))
 
 
 if __name__ == "__main__":

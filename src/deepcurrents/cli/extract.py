@@ -10,7 +10,6 @@ current gives its curve instead, ``curve_r<resolution>.npz`` (one (K, 2) polylin
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +21,7 @@ from omegaconf import MISSING, DictConfig
 from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app, run_evaluation
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
-from deepcurrents.eval.metrics import curve_length, mesh_summary
+from deepcurrents.eval.metrics import curve_length, mesh_summary, metrics_json
 from deepcurrents.eval.render import Camera, render_mesh
 from deepcurrents.models.current_module import input_mesh, metrics_in_input_units
 from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
@@ -102,7 +101,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
             summary = metrics_in_input_units(summary, *frame)
     else:
         mesh.export(path)
-    (out / f"{stem}.json").write_text(json.dumps(summary, indent=2))
+    (out / f"{stem}.json").write_text(metrics_json(summary))
     if cfg.picture:
         render_mesh(mesh, loops, Camera(width=480, height=480), out / f"{stem}.png",
                     title=f"area {mesh.area:.4f}, {len(mesh.faces)} faces")
@@ -119,14 +118,14 @@ def extract_curve(module, current, cfg: DictConfig, out: Path) -> dict:
     np.savez(path, *curves)
     summary = {"curve": str(path), "resolution": int(cfg.resolution), "curve_length": curve_length(curves),
                "pieces": len(curves)}
-    (out / f"curve_r{cfg.resolution}.json").write_text(json.dumps(summary, indent=2))
+    (out / f"curve_r{cfg.resolution}.json").write_text(metrics_json(summary))
     return summary
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="extract")
 def main(cfg: DictConfig) -> None:
     summary = run_app(extract_checkpoint, cfg)
-    print(json.dumps(summary, indent=2))
+    print(metrics_json(summary))
 
 
 if __name__ == "__main__":

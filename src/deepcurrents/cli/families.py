@@ -3,7 +3,6 @@ meshing one member and writing the picture grid with its JSON report."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +12,7 @@ from omegaconf import DictConfig
 
 from deepcurrents.cli.common import output_dir
 from deepcurrents.errors import positive_int
-from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary, sheet_flux
+from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary, metrics_json, sheet_flux
 from deepcurrents.eval.plots import plot_mesh_grid
 from deepcurrents.geometry.curves import write_curve_file
 from deepcurrents.models.autodecoder import AutodecoderModule
@@ -136,5 +135,5 @@ def write_outputs(out_dir: Path, records: list[dict[str, Any]], info: dict[str, 
                    titles=titles, ncols=ncols, size=5.0 if len(records) == 1 else 3.0)
     report = {**info, **summarise(records),
               "items": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records]}
-    (out_dir / json_name).write_text(json.dumps(report, indent=2))
+    (out_dir / json_name).write_text(metrics_json(report))
     return report

@@ -9,6 +9,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.data.human_parts import (
     BORDERS,
     CATEGORIES,
@@ -17,9 +18,42 @@ from deepcurrents.data.human_parts import (
     faust_parts,
     write_parts,
 )
-from deepcurrents.errors import UserInputError
 
 log = logging.getLogger("deepcurrents.make_dataset")
+
+
+def check_out_dir(out: str) -> None:
+    """One sentence unless ``out`` is, or can be made as, a writable folder; nothing is created here, so a run
+    refused later (a bad FAUST file) leaves no empty folder behind."""
+    path = Path(out).expanduser()
+    existing = next((p for p in (path, *path.parents) if p.exists()), Path("."))
+    if not existing.is_dir():
+        raise DatasetError(f"--out='{out}' cannot be created: '{existing}' is a file, not a folder; choose a "
+                           "writable folder.")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise DatasetError(f"--out='{out}' is not writable ('{existing}' does not take files); choose a "
+                           "writable folder.")
+
+
+def build(args: argparse.Namespace) -> None:
+    """Generates or reads the bodies, cuts their parts and writes them (a DatasetError for any bad input)."""
+    check_out_dir(args.out)  # before minutes of generating
+    if args.source == "anny":
+        parts = anny_parts(args.num, args.seed, args.categories, border=args.border)
+        meta = {"generator": "anny", "bodies": args.num, "seed": args.seed, "border": args.border}
+    else:
+        if not args.faust_root:
+            raise DatasetError("--faust-root is required for --source faust.")
+        parts = faust_parts(args.faust_root, args.categories, border=args.border)
+        meta = {"generator": "faust", "root": str(args.faust_root), "border": args.border}
+    try:
+        files = write_parts(parts, Path(args.out).expanduser(), args.source, meta)
+    except OSError as err:
+        raise DatasetError(f"--out='{args.out}': writing the parts failed ({err.strerror or type(err).__name__}"
+                           f"{': ' + str(err.filename) if err.filename else ''}).") from None
+    for name, (p, f, s) in parts.items():
+        log.info("%s: %d meshes, %d faces each, scale %.4g", name, len(p), len(f), s)
+    log.info("wrote %d meshes under %s/%s", len(files), args.out, args.source)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -36,29 +70,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.source == "anny" and args.num < 1:
         parser.error(f"--num={args.num} must be at least 1 (the number of bodies to generate).")
-    try:  # before minutes of generating: the folder must exist and take files
-        Path(args.out).mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise SystemExit(f"error: --out='{args.out}' cannot be created ({err.strerror or type(err).__name__}); "
-                         "choose a writable folder.") from None
-    if not os.access(args.out, os.W_OK | os.X_OK):
-        raise SystemExit(f"error: --out='{args.out}' is not writable; choose a writable folder.")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    try:
-        if args.source == "anny":
-            parts = anny_parts(args.num, args.seed, args.categories, border=args.border)
-            meta = {"generator": "anny", "bodies": args.num, "seed": args.seed, "border": args.border}
-        else:
-            if not args.faust_root:
-                raise DatasetError("--faust-root is required for --source faust.")
-            parts = faust_parts(args.faust_root, args.categories, border=args.border)
-            meta = {"generator": "faust", "root": str(args.faust_root), "border": args.border}
-        files = write_parts(parts, Path(args.out), args.source, meta)
-    except UserInputError as err:
-        raise SystemExit(f"error: {err}") from None
-    for name, (p, f, s) in parts.items():
-        log.info("%s: %d meshes, %d faces each, scale %.4g", name, len(p), len(f), s)
-    log.info("wrote %d meshes under %s/%s", len(files), args.out, args.source)
+    exit_on_user_error(build, args)  # bad inputs: one sentence and status 2, as argparse's own
 
 
 if __name__ == "__main__":

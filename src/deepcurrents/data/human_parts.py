@@ -319,14 +319,25 @@ def load_faust(root: str | Path) -> tuple[list[np.ndarray], np.ndarray, np.ndarr
         raise DatasetError(f"No FAUST meshes (.ply/.obj/.off) in '{mesh_dir}'.")
     bodies, faces = [], None
     for path in files:
-        mesh = trimesh.load(path, process=False, force="mesh")
+        try:  # not geometry.meshes.read_mesh: registrations are read as they are (no vertex merging)
+            mesh = trimesh.load(path, process=False, force="mesh")
+        except Exception as err:  # trimesh raises many kinds for unreadable files
+            raise DatasetError(f"FAUST mesh '{path}' could not be read as a triangle mesh "
+                               f"({type(err).__name__}: {err}).") from None
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise DatasetError(f"FAUST mesh '{path}' holds no triangles.")
+        if not np.isfinite(np.asarray(mesh.vertices)).all():
+            raise DatasetError(f"FAUST mesh '{path}' has NaN or infinite vertex coordinates.")
         if faces is None:
             faces = np.asarray(mesh.faces, np.int64)
         elif not np.array_equal(faces, mesh.faces):
             raise DatasetError(f"FAUST mesh '{path}' does not share the first mesh's triangles "
                                "(registrations must have one topology).")
         bodies.append(np.asarray(mesh.vertices, np.float64))
-    labels = np.loadtxt(seg_file, dtype=np.int64).reshape(-1)
+    try:
+        labels = np.loadtxt(seg_file, dtype=np.int64).reshape(-1)
+    except ValueError as err:  # words, decimals or ragged rows where one integer label per face belongs
+        raise DatasetError(f"'{seg_file}' must hold one integer label per face ({err}).") from None
     if len(labels) != len(faces):
         raise DatasetError(f"'{seg_file}' has {len(labels)} labels but the meshes have {len(faces)} faces.")
     return bodies, faces, labels

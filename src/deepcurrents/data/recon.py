@@ -105,8 +105,11 @@ def read_oriented_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     if len(data) < 10:
         raise TargetError(f"Point cloud '{path}' has {len(data)} points; it needs at least 10.")
     pts, nrm = data[:, :3], data[:, 3:6]
+    if not np.isfinite(pts).all():
+        row = int(np.flatnonzero(~np.isfinite(pts).all(1))[0])
+        raise TargetError(f"Point cloud '{path}' has NaN or infinite coordinates (first in point {row}).")
     norm = np.linalg.norm(nrm, axis=1)
-    if not (np.isfinite(data[:, :6]).all() and (norm > 1e-12).all()):
+    if not (np.isfinite(nrm).all() and (norm > 1e-12).all()):
         raise TargetError(f"Point cloud '{path}' has NaN, infinite or zero-length normals.")
     nrm = nrm / norm[:, None]
     opposed = opposed_neighbour_normals(pts, nrm)

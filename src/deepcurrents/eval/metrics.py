@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -21,6 +22,19 @@ from deepcurrents.geometry.polyline import (
 )
 from deepcurrents.geometry.topology import border_edges
 
+
+def metrics_json(value: Any) -> str:
+    """``value`` (a dict of metrics, nested dicts and lists) as indented, strict JSON: NaN and infinities are
+    written as null (Python's ``NaN`` token is not JSON, and other tools refuse a file that holds it)."""
+    def clean(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x) for x in v]
+        return v
+    return json.dumps(clean(value), indent=2, allow_nan=False)
 
 def jump(dim: int) -> float:
     """The jump of the (solid) angle across the optimal surface: 4π in 3D, 2π in 2D."""

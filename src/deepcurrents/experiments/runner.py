@@ -40,6 +40,7 @@ from lightning.pytorch.utilities.exceptions import MisconfigurationException, SI
 from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
+from deepcurrents.eval.metrics import metrics_json
 from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.experiments.run_dir import (
     RunLock,
@@ -259,8 +260,14 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None) -
     L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
     datamodule, module = build(cfg)
     resume = resume_path(cfg.get("ckpt_path"), out_dir)
+    resumed_step = None
     if resume is not None:
-        check_resumable(resume, module)
+        resumed_step = int(check_resumable(resume, module).get("global_step") or 0)
+        max_steps = cfg.trainer.get("max_steps")
+        if is_global_rank_zero() and isinstance(max_steps, int) and 0 <= max_steps <= resumed_step:
+            log.warning("%s is at step %d, which trainer.max_steps=%d does not exceed: no step will be trained, and "
+                        "the final evaluation scores the checkpoint as it is (raise trainer.max_steps to train on).",
+                        resume, resumed_step, max_steps)
     check_free_space(out_dir, module)
     module.check_final_mesh()
     last = out_dir / "checkpoints" / "last.ckpt"
@@ -294,6 +301,9 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None) -
     trainer.save_checkpoint(last, weights_only=False)
     if trainer.interrupted:
         log.warning("Training was interrupted; evaluating the model as it is.")
+    elif resumed_step is not None and trainer.global_step == resumed_step and trainer.is_global_zero:
+        log.warning("No step was trained: %s had already used the run's budget (trainer.max_steps, trainer.max_time); "
+                    "the final evaluation scores it as it is.", resume)
     if not trainer.is_global_zero:
         return None
     started = time.perf_counter()
@@ -343,7 +353,7 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
                 f"its own checkpoint), or this member ({name}) alone with `python train.py {command}`.")
         metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint)
         results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
-    (out_dir / "suite.json").write_text(json.dumps(results, indent=2))
+    (out_dir / "suite.json").write_text(metrics_json(results))
     report = cfg.suite.get("report") or "deepcurrents.experiments.tables.write_table"
     hydra.utils.get_method(report)(out_dir, results, cfg)
     return results

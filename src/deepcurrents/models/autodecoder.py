@@ -149,7 +149,8 @@ class AutodecoderModule(DeepCurrentsModule):
         if len(shape_names) != num_shapes or len(loop_lengths) != num_shapes:
             raise ConfigError(f"model.num_shapes={num_shapes} does not match the {len(shape_names)} shape names.")
         for key, value in (("surface_weight", surface_weight), ("interpolation_weight", interpolation_weight),
-                           ("mass_weight", mass_weight), ("winding_weight", winding_weight)):
+                           ("mass_weight", mass_weight), ("winding_weight", winding_weight),
+                           ("latent_std", latent_std)):  # 0: every code starts at the origin
             number_at_least(f"model.{key}", value)
         number_at_least("model.latent_lr_factor", latent_lr_factor, strict=True)
         number_at_least("model.winding_reach", winding_reach, 1.0)  # a multiple of the surface loss's ε
@@ -523,8 +524,9 @@ class AutodecoderModule(DeepCurrentsModule):
                             "" if split == "training" else "_held_out")
         be = [r["boundary_error"] for r in train_rows if r["boundary_error"] is not None]
         metrics: dict[str, Any] = {
-            "loss": float(self.trainer.callback_metrics.get("train/loss", float("nan")))
-            if self._trainer is not None else None,
+            # the last training step's loss; null when this process trained no step (a resumed run at its budget)
+            "loss": float(self.trainer.callback_metrics["train/loss"])
+            if self._trainer is not None and "train/loss" in self.trainer.callback_metrics else None,
             "ucd": float(np.mean(ucd)) if ucd else None,
             "ucd_worst": float(np.max(ucd)) if ucd else None,
             "ucd_worst_index": int(train_rows[int(np.argmax([r["ucd"] if r["ucd"] is not None else -1

@@ -4,7 +4,6 @@ checkpoint), and the files of a final evaluation (metrics.json, the mesh and its
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
@@ -17,7 +16,7 @@ import trimesh
 
 from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least, positive_int, share
 from deepcurrents.eval.meshing import grid_shape
-from deepcurrents.eval.metrics import mesh_summary
+from deepcurrents.eval.metrics import mesh_summary, metrics_json
 from deepcurrents.eval.plots import MeshView, plot_mesh
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
 
@@ -202,10 +201,10 @@ class DeepCurrentsModule(L.LightningModule):
 
     @staticmethod
     def write_metrics(out_dir: str | Path, metrics: dict[str, Any]) -> dict[str, Any]:
-        """``out_dir/metrics.json`` (flat JSON). → metrics."""
+        """``out_dir/metrics.json`` (flat, strict JSON: a NaN is written as null). → metrics."""
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+        (out_dir / "metrics.json").write_text(metrics_json(metrics))
         return metrics
 
     def picture_view(self, loops: list[np.ndarray]) -> MeshView | None:
