@@ -174,6 +174,23 @@ TRAIN_CASES = [
      r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
     ("grid method mesh beyond memory", overrides("experiment=minimal_grid", "evaluation.mesh.resolution=100000"),
      r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
+    # 2D boundaries: raw ValueError/TypeError inside Hydra's call before; a NaN vertex trained into a NaN loss that
+    # blamed the learning rate; a vertex outside the domain trained to an empty curve
+    ("2D points a file name", overrides("experiment=minimal_2d", "data.points=/tmp/my_points.txt"),
+     r"data\.points must be a list of \[x, y\] numbers"),
+    ("2D curve NaN vertex", overrides("experiment=recon_2d_semicircle", "data.curve=[[-0.5,0],[nan,0.5],[0.5,0]]"),
+     r"^data\.curve has NaN or infinite coordinates \(first in point 1\)"),
+    ("2D curve a word", overrides("experiment=recon_2d_semicircle", "data.curve=[[a,0],[0.5,0]]"),
+     r"^data\.curve must be 'semicircle' or an open polyline"),
+    ("2D curve outside the domain", overrides("experiment=recon_2d_semicircle", "data.curve=[[-0.5,0],[0,3],[0.5,0]]"),
+     r"^data\.curve must lie inside the domain"),
+    ("2D curve closed", overrides("experiment=recon_2d_semicircle", "data.curve=[[-0.5,0],[0,0.5],[-0.5,0]]"),
+     r"^data\.curve is closed"),
+    ("semicircle radius a word", overrides("experiment=recon_2d_semicircle", "data.radius=big"),
+     r"^data\.radius=big must be positive"),
+    # numpy's 75 GiB MemoryError after the training before
+    ("2D curve grid beyond memory", overrides("experiment=minimal_2d", "evaluation.curve.resolution=100000"),
+     r"evaluation\.curve\.resolution=100000 asks for a 100001×100001 grid"),
     ("family mesh beyond memory", lambda tmp: cap_family(tmp, "evaluation.mesh.resolution=100000"),
      r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
     # these failed only in the final evaluation, after the training (a ValueError from int(), or UCD of 0 samples)
@@ -326,6 +343,13 @@ APP_CASES = [
      lambda tmp, ck: {"ckpt_path": str(ck), "camera.width": -3}, "camera.width"),
     ("extract resolution beyond memory", extract_checkpoint, ExtractConfig, "trefoil",  # was numpy's MemoryError
      lambda tmp, ck: {"ckpt_path": str(ck), "resolution": 100000}, r"resolution=100000 asks for a .* meshing grid"),
+    # taken before (training refuses them), a mesh written anyway
+    ("extract delta negative", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "delta": -1.0}, r"^delta=-1\.0 must be non-negative"),
+    ("extract tube negative", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "boundary_tube": -0.1}, r"^boundary_tube=-0\.1 must be non-negative"),
+    ("extract newton steps negative", extract_checkpoint, ExtractConfig, "trefoil",
+     lambda tmp, ck: {"ckpt_path": str(ck), "newton_steps": -2}, r"^newton_steps=-2 must be an integer ≥ 0"),
     ("render name with folders", render_checkpoint, RenderConfig, "trefoil",  # wrote the picture outside out_dir
      lambda tmp, ck: {"ckpt_path": str(ck), "name": "../escaped"}, r"name='\.\./escaped' must be a plain file name"),
     ("render fov zero", render_checkpoint, RenderConfig, "trefoil",  # was a ZeroDivisionError in fit_camera

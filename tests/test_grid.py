@@ -185,11 +185,50 @@ def test_grid_is_sized_like_the_network_and_rejects_bad_input(tmp_path):
     n, count = matched_resolution(dict(width=256, depth=4), dict(num_frequencies=1024), [torch.tensor(circle())])
     assert (n, count) == (90, 725_249)  # the paper's 90³ for its 725,249 weights
     for bad, message in [(["model.grid.resolution=2"], "resolution"), (["model.admm.rho=-1"], "rho"),
-                         (["experiment=minimal_grid", "data=points_2d"], "3D boundary")]:
+                         (["experiment=minimal_grid", "data=points_2d"], "3D boundary"),
+                         # ignored without a word before (the keys are read by name)
+                         (["+model.grid.resolutoin=50"], r"^model\.grid\.resolutoin is not a setting of model\.grid"),
+                         (["+model.admm.tols=1e-4"], r"^model\.admm\.tols is not a setting of model\.admm"),
+                         # one sentence naming neither before; a negative count was taken
+                         (["model.admm.tol=-1"], r"^model\.admm\.tol=-1 must be positive"),
+                         (["model.admm.balance=-1"], r"^model\.admm\.balance=-1 must be non-negative"),
+                         (["model.admm.min_iterations=-3"], r"^model\.admm\.min_iterations=-3 must be an integer"),
+                         # torch's allocator error inside Hydra's before (1 TB in one allocation)
+                         (["model.grid.resolution=5000"], r"^model\.grid\.resolution=5000 asks for about .* GiB")]:
         overrides = bad if bad[0].startswith("experiment") else ["experiment=minimal_grid", *bad]
         with pytest.raises(ConfigError, match=message) as info:
             train(compose_cfg([*overrides, *TINY]), out_dir=tmp_path)
         assert "\n" not in str(info.value)
+
+
+def test_resuming_a_grid_at_another_resolution_names_the_resolution(tmp_path):
+    """The grid's one array is φ (N, N, N): a resume at another N said model.net / model.rff sizes differ."""
+    from deepcurrents.errors import UserInputError
+
+    base = ["experiment=minimal_grid", *TINY, "trainer.max_steps=2", "model.grid.resolution=8"]
+    train(compose_cfg(base), out_dir=tmp_path / "run")
+    resume = [*base[:-1], "model.grid.resolution=10", f"ckpt_path={tmp_path / 'run' / 'checkpoints' / 'last.ckpt'}"]
+    with pytest.raises(UserInputError, match=r"holds a 8³ grid, but this run's config builds 10³ .*"
+                                             r"model\.grid\.resolution=8\)"):
+        train(compose_cfg(resume), out_dir=tmp_path / "again")
+
+
+def test_a_suite_refuses_an_override_that_would_make_its_members_one_problem(tmp_path):
+    """experiment=fig4 data.curve=circle ran the circle six times under the three curves' names; a setting of the
+    problem that the members set apart is refused in one sentence before anything runs, while one they share
+    (data.category in the hand ablation) and settings of the run (trainer.max_steps) pass."""
+    from deepcurrents.experiments.runner import check_suite_overrides, run_suite
+
+    fig4, table1, ablation = (compose_cfg([f"experiment={e}"]) for e in ("fig4", "table1", "hand_ablation"))
+    with hydra_context():
+        with pytest.raises(ConfigError, match=r"^data\.curve=circle would replace the data\.curve .*grid_trefoil: "
+                                              r"trefoil.*grid_hopf: hopf"):
+            run_suite(fig4, tmp_path, extra_overrides=["data.curve=circle"])
+        with pytest.raises(ConfigError, match=r"^data\.category=feet would replace"):
+            check_suite_overrides(table1, ["data.category=feet"])
+        check_suite_overrides(fig4, ["trainer.max_steps=3", "preset=cpu"])
+        check_suite_overrides(ablation, ["data.category=feet"])
+    assert not any(tmp_path.iterdir())
 
 
 @pytest.mark.slow

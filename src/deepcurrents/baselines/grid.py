@@ -23,6 +23,7 @@ from deepcurrents.baselines.grid_solver import (
     grid_vertices,
 )
 from deepcurrents.errors import ConfigError, number_at_least, positive_int
+from deepcurrents.eval.device import available_memory
 from deepcurrents.eval.meshing import extract_surface, mesh_method, mesh_region
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import biot_savart
@@ -38,6 +39,24 @@ def matched_resolution(net: dict[str, Any], rff: dict[str, Any] | None, loops: l
     network = NeuralCurrent(dim=3, loops=loops, **network_kwargs(net, rff))
     count = sum(p.numel() for p in network.parameters()) + network.encoding.frequencies.numel()
     return max(4, round(count ** (1.0 / 3.0))), count
+
+
+GRID_KEYS = ("resolution", "dtype")
+ADMM_KEYS = ("rho", "relaxation", "balance", "tol", "min_iterations")
+# Bytes a grid corner takes while training (α at the corners, φ, ADMM's split variable, its multiplier and the
+# iteration's temporaries, then the final evaluation's field): the peak RSS of `minimal_grid` runs at N = 60 and
+# 120 in float64 grew by 340 bytes a corner; a little less here, so that only grids that cannot fit are refused.
+GRID_CORNER_BYTES = 300
+
+
+def check_grid_memory(resolution: int, dtype: torch.dtype) -> None:
+    """One sentence if an N³ grid's arrays cannot fit in the memory available here (N = 5000 asked for 1 TB in
+    one allocation, a raw RuntimeError from torch's allocator)."""
+    need = GRID_CORNER_BYTES * (resolution + 1) ** 3 * torch.finfo(dtype).bits // 64
+    free = available_memory()
+    if free is not None and need > free:
+        raise ConfigError(f"model.grid.resolution={resolution} asks for about {need / 2**30:.1f} GiB of memory, but "
+                          f"{free / 2**30:.1f} GiB are available here; lower it.")
 
 
 class GridModule(DeepCurrentsModule):
@@ -66,6 +85,11 @@ class GridModule(DeepCurrentsModule):
         self.evaluation = dict(evaluation or {})
         if "loops" not in boundary:
             raise ConfigError("model=grid needs a 3D boundary (closed loops); 2D point boundaries are not supported.")
+        for node, given, known in (("grid", grid, GRID_KEYS), ("admm", admm, ADMM_KEYS)):
+            unknown = sorted(set(given) - set(known))
+            if unknown:  # read by name: a misspelt key (+model.grid.resolutoin=50) would be ignored without a word
+                raise ConfigError(f"model.{node}.{unknown[0]} is not a setting of model.{node} (its settings: "
+                                  f"{', '.join(known)}).")
         loops = [torch.tensor(lp, dtype=torch.float64) for lp in boundary["loops"]]
         alpha_scale = number_at_least("model.net.alpha_scale", net.get("alpha_scale", 1e-3), strict=True)
         dtype = str(grid.get("dtype", "float64"))
@@ -76,16 +100,16 @@ class GridModule(DeepCurrentsModule):
         if resolution is None:
             resolution, self.matched_parameters = matched_resolution(net, rff, loops)
         positive_int("model.grid.resolution", resolution, 4)
-        self.admm_settings = {"rho": float(admm.get("rho", 0.5)), "relaxation": float(admm.get("relaxation", 1.6)),
-                              "balance": float(admm.get("balance", 10.0)), "tol": float(admm.get("tol", 1e-3)),
-                              "min_iterations": int(admm.get("min_iterations", 10))}
-        s = self.admm_settings
-        if not s["rho"] > 0:
-            raise ConfigError(f"model.admm.rho={s['rho']} must be positive.")
-        if not 1.0 <= s["relaxation"] < 2.0:
-            raise ConfigError(f"model.admm.relaxation={s['relaxation']} must be in [1, 2).")
-        if not s["tol"] > 0 or s["balance"] < 0:
-            raise ConfigError("model.admm.tol must be positive and model.admm.balance non-negative.")
+        check_grid_memory(resolution, DTYPES[dtype])
+        relaxation = number_at_least("model.admm.relaxation", admm.get("relaxation", 1.6), 1.0)
+        if not relaxation < 2.0:
+            raise ConfigError(f"model.admm.relaxation={relaxation:g} must be in [1, 2).")
+        self.admm_settings = {"rho": number_at_least("model.admm.rho", admm.get("rho", 0.5), strict=True),
+                              "relaxation": relaxation,
+                              "balance": number_at_least("model.admm.balance", admm.get("balance", 10.0)),
+                              "tol": number_at_least("model.admm.tol", admm.get("tol", 1e-3), strict=True),
+                              "min_iterations": positive_int("model.admm.min_iterations",
+                                                             admm.get("min_iterations", 10), 0)}
         self.current = GridCurrent(resolution, loops, alpha_scale, DTYPES[dtype])
         self._problem: GridProblem | None = None
         self.setup_seconds = 0.0

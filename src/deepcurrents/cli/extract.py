@@ -19,7 +19,7 @@ import numpy as np
 from omegaconf import MISSING, DictConfig
 
 from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app, run_evaluation
-from deepcurrents.errors import ConfigError, positive_int
+from deepcurrents.errors import ConfigError, number_at_least, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import curve_length, mesh_summary, metrics_json
 from deepcurrents.eval.render import Camera, render_mesh
@@ -61,6 +61,11 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     positive_int("resolution", cfg.resolution, 8)
     if cfg.strip_rows is not None:
         positive_int("strip_rows", cfg.strip_rows)
+    for key in ("delta", "boundary_tube"):  # as training refuses them (experiments.config.validate_config)
+        if cfg.get(key) is not None:
+            number_at_least(key, cfg.get(key))
+    if cfg.get("newton_steps") is not None:
+        positive_int("newton_steps", cfg.newton_steps, 0)
     fmt = str(cfg.format).lower().lstrip(".")
     if fmt not in FORMATS:
         raise ConfigError(f"format='{cfg.format}' must be one of {', '.join(FORMATS)}.")

@@ -416,17 +416,29 @@ class CurveMetricDataModule(L.LightningDataModule):
         if isinstance(curve, str):
             if curve != "semicircle":
                 raise ConfigError(f"data.curve='{curve}' must be 'semicircle' or a list of [x, y] points.")
-            if not 0 < radius < 1:
+            if not number_at_least("data.radius", radius, strict=True) < 1:
                 raise ConfigError(f"data.radius={radius} must be in (0, 1) to fit in [-1, 1]^2.")
             pts = semicircle(radius)
         else:
-            pts = np.asarray(curve, np.float64)
+            try:
+                pts = np.asarray(curve, np.float64)
+            except (TypeError, ValueError):
+                pts = np.zeros((0,))
             if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
-                raise ConfigError("data.curve must be an open polyline of at least two [x, y] points.")
+                raise ConfigError("data.curve must be 'semicircle' or an open polyline of at least two [x, y] points "
+                                  "(numbers), e.g. data.curve=[[-0.5,0],[0,0.5],[0.5,0]].")
+            if not np.isfinite(pts).all():
+                row = int(np.flatnonzero(~np.isfinite(pts).all(1))[0])
+                raise ConfigError(f"data.curve has NaN or infinite coordinates (first in point {row}).")
+            if np.abs(pts).max() >= 1:
+                raise ConfigError("data.curve must lie inside the domain (-1, 1)^2, where the samples are drawn.")
+            if np.linalg.norm(pts[0] - pts[-1]) < 1e-9:
+                raise ConfigError("data.curve is closed (its first and last points coincide): a closed curve has no "
+                                  "boundary to reconstruct from; give an open polyline.")
         if num_samples <= 0:
             raise ConfigError(f"data.num_samples={num_samples} must be a positive integer.")
         self.curve, self.num_samples, self.num_workers, self.seed = pts, num_samples, num_workers, seed
-        self.boundary = validate_points(pts[[0, -1]], [-1.0, 1.0], source="the curve's end points")
+        self.boundary = validate_points(pts[[0, -1]], [-1.0, 1.0], source="of data.curve (its end points)")
 
     def metric_fn(self, x: torch.Tensor) -> torch.Tensor:
         """B_x of this target at any points, for pictures (Fig. 3d's ellipses). x (N, 2) → (N, 2, 2)."""

@@ -10,6 +10,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import CURVE_METHODS, MESH_METHOD_CHOICES
+from deepcurrents.eval.meshing.curve_2d import check_curve_grid
 
 
 def _positive_int(cfg: DictConfig, key: str, minimum: int = 1) -> None:
@@ -102,6 +103,8 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "evaluation.mesh.resolution", 8)
     _positive_int(cfg, "evaluation.mesh.strip_rows")
     _positive_int(cfg, "evaluation.curve.resolution", 8)
+    if OmegaConf.select(cfg, "data.dim") == 2 and OmegaConf.select(cfg, "evaluation.curve.resolution") is not None:
+        check_curve_grid(cfg.evaluation.curve.resolution, "evaluation.curve.resolution")  # before the training
     _positive_int(cfg, "callbacks.model_checkpoint.every_n_train_steps")
     _positive_int(cfg, "trainer.log_every_n_steps")  # 0 silently turned the training logs off
     for key in ("evaluation.mass_rel_stderr", "evaluation.mass_tube_radius", "evaluation.mesh.delta",

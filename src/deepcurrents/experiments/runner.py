@@ -52,7 +52,7 @@ from deepcurrents.experiments.run_dir import (
 from deepcurrents.models.callbacks import progress_bar
 from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint, ResumeState
 from deepcurrents.models.current_module import boundary_spec
-from deepcurrents.models.loading import check_resumable
+from deepcurrents.models.loading import PROBLEM_KEYS, check_resumable
 
 log = logging.getLogger("deepcurrents")
 
@@ -333,6 +333,28 @@ def inherited_overrides() -> list[str]:
     return [o for o in HydraConfig.get().overrides.task if not o.lstrip("+~").startswith("experiment=")]
 
 
+def check_suite_overrides(cfg: DictConfig, inherited: list[str]) -> None:
+    """ConfigError if a command-line override sets a setting of the problem (``data.curve``, ``data.category``, …,
+    models.loading.PROBLEM_KEYS) that the suite's members set to different values: every member would then solve
+    the same problem under its own name (``experiment=fig4 data.curve=circle`` ran the circle six times and
+    labelled the rows trefoil, hopf and borromean)."""
+    for override in inherited:
+        key = override.lstrip("+~").split("=", 1)[0]
+        if not key.startswith("data.") or key.split(".", 1)[1] not in PROBLEM_KEYS:
+            continue
+        values = {}
+        for member in cfg.suite.runs:
+            own = hydra.compose(config_name="train", overrides=list(member.overrides))
+            value = OmegaConf.select(own, key, default=None)
+            if value is not None:
+                values[str(member.name)] = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
+        if len({repr(v) for v in values.values()}) > 1:
+            sets = ", ".join(f"{name}: {value}" for name, value in values.items())
+            raise ConfigError(f"{override} would replace the {key} that the members of this suite set apart ({sets}), "
+                              "so every member would run the same problem under its own name; run one problem with "
+                              "its own experiment instead (e.g. experiment=minimal_grid or minimal_curve).")
+
+
 def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:
     """Runs every member of ``cfg.suite`` into ``out_dir/<name>`` and calls the report. → member results.
 
@@ -340,6 +362,7 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
     member's role fixes whatever the command line says: Table 1's baseline trains for our run's wall time, so a
     ``trainer.max_steps`` given for the suite must not stop it first)."""
     inherited = inherited_overrides() if extra_overrides is None else list(extra_overrides)
+    check_suite_overrides(cfg, inherited)
     results = []
     for member in cfg.suite.runs:
         name = str(member.name)

@@ -453,8 +453,12 @@ class PointBoundary:
 
 def validate_points(points, signs, source: str = "data.points", domain: float = 1.0) -> PointBoundary:
     """Checks a 2D boundary: finite points strictly inside the domain, signs ±1 summing to zero."""
-    pts = np.asarray(points, dtype=np.float64)
-    sg = np.asarray(signs, dtype=np.float64)
+    try:  # a word or a file name where a list of numbers belongs (data.points=my_points.txt)
+        pts = np.asarray(points, dtype=np.float64)
+        sg = np.asarray(signs, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise BoundaryError(f"Boundary {source} must be a list of [x, y] numbers with one sign ±1 each, e.g. "
+                            "data.points=[[-0.5,0],[0.5,0]] data.signs=[-1,1].") from None
     if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0:
         raise BoundaryError(f"Boundary {source} must be a non-empty list of [x, y] points, got shape {pts.shape}.")
     if sg.shape != (len(pts),) or not np.all(np.isin(sg, (-1.0, 1.0))):

@@ -266,6 +266,13 @@ def check_resumable(ckpt_path: str | Path, module: DeepCurrentsModule) -> dict[s
                 "option it was not trained with); resume with the settings it was trained with."
             )
         if other.shape != tensor.shape:
+            grid = getattr(module, "resolution", None)
+            if name == "current.phi" and grid is not None:  # the grid method's one array: name its resolution
+                raise CheckpointError(
+                    f"ckpt_path='{ckpt_path}' holds a {other.shape[0]}³ grid, but this run's config builds "
+                    f"{grid}³ (model.grid.resolution, or the network size it is matched to); resume with the "
+                    f"resolution it was trained with (model.grid.resolution={other.shape[0]})."
+                )
             raise CheckpointError(
                 f"ckpt_path='{ckpt_path}': its weights do not fit the {type(module).__name__} this run's config "
                 f"builds ('{name}' differs: model.net / model.rff / model.* sizes are not the ones it was "

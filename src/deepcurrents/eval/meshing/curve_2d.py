@@ -19,9 +19,11 @@ import torch
 from scipy.ndimage import map_coordinates
 from skimage.measure import find_contours
 
-from deepcurrents.eval.device import device_of
+from deepcurrents.errors import ConfigError
+from deepcurrents.eval.device import available_memory, device_of
 from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.level_set import aligned_with_grad_f
+from deepcurrents.eval.meshing.surface import NODE_BYTES
 from deepcurrents.geometry import angle_2d
 
 CURVE_METHODS = ("phase", "level_set")
@@ -48,6 +50,15 @@ def good_runs(points: np.ndarray, good: np.ndarray) -> list[np.ndarray]:
 
 @torch.no_grad()
 @reads_level_sets
+def check_curve_grid(resolution: int, key: str = "resolution") -> None:
+    """One sentence naming ``key`` when the (resolution + 1)² grid of a 2D current's curve cannot fit in the memory
+    available here (``NODE_BYTES`` a node, as a mesh's; 100000 asked numpy for 75 GiB after the training)."""
+    need, free = NODE_BYTES * (int(resolution) + 1) ** 2, available_memory()
+    if free is not None and need > free:
+        raise ConfigError(f"{key}={resolution} asks for a {resolution + 1}×{resolution + 1} grid, about "
+                          f"{need / 2**30:.1f} GiB of memory, but {free / 2**30:.1f} GiB are available here; lower it.")
+
+
 def extract_curve_2d(
     current, resolution: int = 256, delta: float = 5e-3, boundary_tube: float = 0.03, min_alignment: float = 0.5,
     method: str = "phase", chunk_size: int = 1 << 16,
@@ -60,6 +71,7 @@ def extract_curve_2d(
     """
     if method not in CURVE_METHODS:
         raise ValueError(f"method={method!r} must be one of {CURVE_METHODS}.")
+    check_curve_grid(resolution)
     dev = device_of(current)
     axis = np.linspace(-1.0, 1.0, resolution + 1)
     h = axis[1] - axis[0]
