@@ -109,13 +109,14 @@ def test_faust_loader_on_a_fixture(tmp_path):
     assert len(list((tmp_path / "out" / "faust" / "torsos").glob("*.ply"))) == 3
 
 
-def test_dataset_errors_say_what_to_do(tmp_path):
+def test_dataset_errors_say_what_to_do(tmp_path, capsys):
     with pytest.raises(DatasetError, match="make data"):
         dataset_path(tmp_path, "anny", "hands", 0)
     with pytest.raises(DatasetError, match="is not a directory"):
         faust_parts(tmp_path)
-    with pytest.raises(SystemExit, match="--faust-root is required"):
+    with pytest.raises(SystemExit) as err:
         main(["--source", "faust", "--out", str(tmp_path)])
+    assert err.value.code == 2 and "--faust-root is required" in capsys.readouterr().err
 
 
 # ---------------------------------------------------------------------------------------------- smooth borders

@@ -48,8 +48,6 @@ def good_runs(points: np.ndarray, good: np.ndarray) -> list[np.ndarray]:
     return pieces
 
 
-@torch.no_grad()
-@reads_level_sets
 def check_curve_grid(resolution: int, key: str = "resolution") -> None:
     """One sentence naming ``key`` when the (resolution + 1)² grid of a 2D current's curve cannot fit in the memory
     available here (``NODE_BYTES`` a node, as a mesh's; 100000 asked numpy for 75 GiB after the training)."""
@@ -59,6 +57,8 @@ def check_curve_grid(resolution: int, key: str = "resolution") -> None:
                           f"{need / 2**30:.1f} GiB of memory, but {free / 2**30:.1f} GiB are available here; lower it.")
 
 
+@torch.no_grad()
+@reads_level_sets
 def extract_curve_2d(
     current, resolution: int = 256, delta: float = 5e-3, boundary_tube: float = 0.03, min_alignment: float = 0.5,
     method: str = "phase", chunk_size: int = 1 << 16,
