@@ -358,3 +358,12 @@ def test_apps_on_a_family_shape_write_beside_the_checkpoint_under_that_shape(tmp
     assert output_dir(str(ckpt), None, shape=2) == tmp_path / "run" / "checkpoints" / "last" / "shape2"
     assert output_dir(str(ckpt), str(tmp_path / "mine"), shape=2) == tmp_path / "mine"
     assert (tmp_path / "run" / "checkpoints" / "last" / "shape2").is_dir()
+
+
+@pytest.mark.parametrize("module", ["families", "common"])
+def test_the_apps_helper_modules_are_not_commands_and_say_so(module):
+    """`python -m deepcurrents.cli.families` (shared plumbing of interpolate and generate) exited 0 without a word."""
+    done = subprocess.run([sys.executable, "-m", f"deepcurrents.cli.{module}"], capture_output=True, text=True,
+                          cwd=ROOT, timeout=120)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.startswith(f"error: deepcurrents.cli.{module} is shared plumbing of the apps, not a command")

@@ -108,3 +108,17 @@ def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> di
         # reconstructions: the run meshed over its target's box, so must the apps
         settings["bounds"] = module.target_bounds(settings.get("padding", 0.15))
     return mesh_method(settings, getattr(module, "mesh_method", "phase"))
+
+
+
+def not_a_command(module: str) -> None:
+    """For the helper modules' ``__main__``: one sentence and status 2 (``python -m deepcurrents.cli.families``
+    exited 0 without a word)."""
+    print(f"error: {module} is shared plumbing of the apps, not a command; the commands are "
+          "python -m deepcurrents.cli.<train|render|extract|evaluate|interpolate|generate|make_dataset>.",
+          file=sys.stderr)
+    sys.exit(2)
+
+
+if __name__ == "__main__":
+    not_a_command("deepcurrents.cli.common")

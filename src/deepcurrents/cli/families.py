@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
-from deepcurrents.cli.common import output_dir
+from deepcurrents.cli.common import not_a_command, output_dir
 from deepcurrents.errors import positive_int
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary, metrics_json, sheet_flux
 from deepcurrents.eval.plots import plot_mesh_grid
@@ -137,3 +137,8 @@ def write_outputs(out_dir: Path, records: list[dict[str, Any]], info: dict[str, 
               "items": [{k: v for k, v in r.items() if not k.startswith("_")} for r in records]}
     (out_dir / json_name).write_text(metrics_json(report))
     return report
+
+
+
+if __name__ == "__main__":
+    not_a_command("deepcurrents.cli.families")
