@@ -191,6 +191,9 @@ TRAIN_CASES = [
     # numpy's 75 GiB MemoryError after the training before
     ("2D curve grid beyond memory", overrides("experiment=minimal_2d", "evaluation.curve.resolution=100000"),
      r"evaluation\.curve\.resolution=100000 asks for a 100001×100001 grid"),
+    ("2D target curve grid beyond memory",
+     overrides("experiment=recon_2d_semicircle", "evaluation.curve.resolution=100000"),
+     r"^evaluation\.curve\.resolution=100000 asks for a 100001×100001 grid"),
     ("family mesh beyond memory", lambda tmp: cap_family(tmp, "evaluation.mesh.resolution=100000"),
      r"evaluation\.mesh\.resolution=100000 asks for a .* meshing grid"),
     # these failed only in the final evaluation, after the training (a ValueError from int(), or UCD of 0 samples)

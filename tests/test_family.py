@@ -489,8 +489,9 @@ def test_paper_and_cpu_settings_of_the_family_experiments():
             assert cpu.model.latent_lr_factor == 0.1 and cpu.model.optim.schedule == "cosine"
             assert (cpu.model.optim.warmup, cpu.model.optim.min_factor) == (0.02, 0.01)
             assert cpu.evaluation.mesh.padding == 0.5 and cpu.evaluation.mesh.resolution == 80
-        else:  # heads keep the former CPU settings, which were better on them (README "Heads with ..."), but for
-            # the scaling and the blended level, which together closed their grids (README "Heads: the scaling ..."),
+        else:  # heads keep the former CPU settings, which were better on them (docs/notes/families.md "Heads with
+            # ..."), but for the scaling and the blended level, which together closed their grids (the notes' "Heads:
+            # the scaling ..."),
             # and the hands' δ
             assert cpu.model.rff.sigma == 2
             assert cpu.model.latent_lr_factor == 1 and cpu.model.optim.schedule == "step"

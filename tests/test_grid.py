@@ -221,12 +221,17 @@ def test_a_suite_refuses_an_override_that_would_make_its_members_one_problem(tmp
 
     fig4, table1, ablation = (compose_cfg([f"experiment={e}"]) for e in ("fig4", "table1", "hand_ablation"))
     with hydra_context():
-        with pytest.raises(ConfigError, match=r"^data\.curve=circle would replace the data\.curve .*grid_trefoil: "
-                                              r"trefoil.*grid_hopf: hopf"):
+        with pytest.raises(ConfigError, match=r"^data\.curve=circle would choose one problem .*grid_trefoil: "
+                                              r"curve=trefoil.*grid_hopf: curve=hopf"):
             run_suite(fig4, tmp_path, extra_overrides=["data.curve=circle"])
-        with pytest.raises(ConfigError, match=r"^data\.category=feet would replace"):
+        with pytest.raises(ConfigError, match=r"^data\.category=feet would choose one problem"):
             check_suite_overrides(table1, ["data.category=feet"])
-        check_suite_overrides(fig4, ["trainer.max_steps=3", "preset=cpu"])
+        # the members leave data.mesh unset, and a mesh wins over a category: one hand as four parts
+        with pytest.raises(ConfigError, match=r"^data\.mesh=my_hand\.ply would choose one problem .*category=heads"):
+            check_suite_overrides(table1, ["data.mesh=my_hand.ply"])
+        check_suite_overrides(fig4, ["trainer.max_steps=3", "preset=cpu", "data.curve_vertices=300",
+                                     "data.normalize=false"])
+        check_suite_overrides(table1, ["data.source=faust", "data.index=3"])
         check_suite_overrides(ablation, ["data.category=feet"])
     assert not any(tmp_path.iterdir())
 

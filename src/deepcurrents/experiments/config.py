@@ -103,8 +103,8 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "evaluation.mesh.resolution", 8)
     _positive_int(cfg, "evaluation.mesh.strip_rows")
     _positive_int(cfg, "evaluation.curve.resolution", 8)
-    if OmegaConf.select(cfg, "data.dim") == 2 and OmegaConf.select(cfg, "evaluation.curve.resolution") is not None:
-        check_curve_grid(cfg.evaluation.curve.resolution, "evaluation.curve.resolution")  # before the training
+    if OmegaConf.select(cfg, "evaluation.curve.resolution") is not None:  # before the training (any 2D data kind)
+        check_curve_grid(cfg.evaluation.curve.resolution, "evaluation.curve.resolution")
     _positive_int(cfg, "callbacks.model_checkpoint.every_n_train_steps")
     _positive_int(cfg, "trainer.log_every_n_steps")  # 0 silently turned the training logs off
     for key in ("evaluation.mass_rel_stderr", "evaluation.mass_tube_radius", "evaluation.mesh.delta",

@@ -52,7 +52,7 @@ from deepcurrents.experiments.run_dir import (
 from deepcurrents.models.callbacks import progress_bar
 from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint, ResumeState
 from deepcurrents.models.current_module import boundary_spec
-from deepcurrents.models.loading import PROBLEM_KEYS, check_resumable
+from deepcurrents.models.loading import check_resumable
 
 log = logging.getLogger("deepcurrents")
 
@@ -333,26 +333,37 @@ def inherited_overrides() -> list[str]:
     return [o for o in HydraConfig.get().overrides.task if not o.lstrip("+~").startswith("experiment=")]
 
 
+# The data settings that choose a run's problem (which curve, mesh, point cloud, family or part); the others modify
+# it (data.curve_vertices, data.source, data.index, …) and may reach every member of a suite alike.
+PROBLEM_CHOICE_KEYS = ("curve", "mesh", "points", "signs", "radius", "path", "category")
+
+
 def check_suite_overrides(cfg: DictConfig, inherited: list[str]) -> None:
-    """ConfigError if a command-line override sets a setting of the problem (``data.curve``, ``data.category``, …,
-    models.loading.PROBLEM_KEYS) that the suite's members set to different values: every member would then solve
-    the same problem under its own name (``experiment=fig4 data.curve=circle`` ran the circle six times and
-    labelled the rows trefoil, hopf and borromean)."""
-    for override in inherited:
-        key = override.lstrip("+~").split("=", 1)[0]
-        if not key.startswith("data.") or key.split(".", 1)[1] not in PROBLEM_KEYS:
-            continue
-        values = {}
-        for member in cfg.suite.runs:
-            own = hydra.compose(config_name="train", overrides=list(member.overrides))
-            value = OmegaConf.select(own, key, default=None)
+    """ConfigError if a command-line override chooses the problem (``data.curve``, ``data.mesh``, ``data.category``,
+    …, ``PROBLEM_CHOICE_KEYS``) of a suite whose members solve different problems: every member would then solve
+    the same one under its own name (``experiment=fig4 data.curve=circle`` ran the circle six times and labelled the
+    rows trefoil, hopf and borromean; ``experiment=table1 data.mesh=…`` would reconstruct one mesh as four parts)."""
+    chosen = [o for o in inherited if o.lstrip("+~").split("=", 1)[0].startswith("data.")
+              and o.lstrip("+~").split("=", 1)[0].split(".", 1)[1] in PROBLEM_CHOICE_KEYS]
+    if not chosen:
+        return
+    problems = {}
+    for member in cfg.suite.runs:
+        own = hydra.compose(config_name="train", overrides=list(member.overrides))
+        problem = {}
+        for key in PROBLEM_CHOICE_KEYS:
+            value = OmegaConf.select(own, f"data.{key}", default=None)
             if value is not None:
-                values[str(member.name)] = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
-        if len({repr(v) for v in values.values()}) > 1:
-            sets = ", ".join(f"{name}: {value}" for name, value in values.items())
-            raise ConfigError(f"{override} would replace the {key} that the members of this suite set apart ({sets}), "
-                              "so every member would run the same problem under its own name; run one problem with "
-                              "its own experiment instead (e.g. experiment=minimal_grid or minimal_curve).")
+                problem[key] = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
+        problems[str(member.name)] = problem
+    if len({repr(sorted(p.items())) for p in problems.values()}) > 1:
+        differing = sorted({k for p in problems.values() for k in p
+                            if len({repr(q.get(k)) for q in problems.values()}) > 1})
+        sets = ", ".join(f"{name}: " + " ".join(f"{k}={p.get(k)}" for k in differing) for name, p in problems.items())
+        raise ConfigError(f"{chosen[0]} would choose one problem for the members of this suite, which solve different "
+                          f"ones ({sets}), so every member would run the same problem under its own name; run it "
+                          "with its own experiment instead (e.g. experiment=minimal_grid, minimal_curve or "
+                          "recon_mesh).")
 
 
 def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:
