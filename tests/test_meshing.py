@@ -129,6 +129,21 @@ def test_a_new_meshing_method_is_one_class(monkeypatch):
         extract_surface(disk, method="nope")
 
 
+def test_a_tube_that_holds_the_whole_surface_is_named_as_the_cause(monkeypatch, caplog):
+    """extract boundary_tube=5 cut every face away and the warning blamed the current (|ω| below δ)."""
+    import logging
+
+    from test_render import AnalyticDisk
+
+    monkeypatch.setitem(METHODS, "plane", PlaneMethod)
+    disk = AnalyticDisk(radius=0.5, normal=tuple(PlaneMethod.normal.double().numpy()))
+    with caplog.at_level(logging.WARNING):
+        result = extract_surface(disk, resolution=24, method="plane", boundary_tube=5.0)
+    assert len(result.mesh.faces) == 0
+    assert "boundary tube (radius 5 about Γ) holds the whole level set" in caplog.text
+    assert "No part of the surface carries the current" not in caplog.text
+
+
 
 class PinholedPlane(PlaneMethod):
     """The plane, with the one face whose centroid is nearest the disk's centre failing the carrying test (as

@@ -216,7 +216,12 @@ def extract_surface(
     verts = verts[used].astype(np.float64) + bounds[0]
     faces = faces.reshape(-1, 3).astype(np.int64)
     if tube > 0:
+        before = len(faces)
         verts, faces = cut_tube(verts, faces, loops, tube)
+        if before and not len(faces):  # not the current's fault: say which setting removed the surface
+            log.warning("The boundary tube (radius %.3g about Γ) holds the whole level set: the mesh is empty; "
+                        "lower boundary_tube.", tube)
+            return empty
 
     if len(faces):
         centroids = torch.as_tensor(verts[faces].mean(1), dtype=torch.float32, device=dev)
