@@ -188,6 +188,11 @@ TRAIN_CASES = [
      r"^data\.curve is closed"),
     ("semicircle radius a word", overrides("experiment=recon_2d_semicircle", "data.radius=big"),
      r"^data\.radius=big must be positive"),
+    # read by name, so a misspelt key added with + was ignored without a word
+    ("evaluation key misspelt", overrides("experiment=minimal_trefoil", "+evaluation.mesh.resolutoin=64"),
+     r"^evaluation\.mesh\.resolutoin is not a setting of evaluation\.mesh \(its settings: method, resolution"),
+    ("evaluation key unknown", overrides("experiment=minimal_trefoil", "+evaluation.mass_sample=10"),
+     r"^evaluation\.mass_sample is not a setting of evaluation "),
     # numpy's 75 GiB MemoryError after the training before
     ("2D curve grid beyond memory", overrides("experiment=minimal_2d", "evaluation.curve.resolution=100000"),
      r"evaluation\.curve\.resolution=100000 asks for a 100001×100001 grid"),

@@ -14,6 +14,7 @@ from hydra.utils import get_object
 from omegaconf import OmegaConf, open_dict
 
 from deepcurrents.errors import UserInputError
+from deepcurrents.experiments.config import validate_config
 from deepcurrents.experiments.runner import build, train
 
 CONF = Path(CONF_DIR)
@@ -79,6 +80,8 @@ def test_every_group_option_composes_resolves_and_imports(overrides):
     with open_dict(cfg):
         del cfg["hydra"]
     assert_resolves(cfg)
+    if not cfg.get("suite"):  # and passes the run's own checks: values, and evaluation keys that conf/train.yaml has
+        validate_config(cfg)
 
 
 # ------------------------------------------------------------------------------ experiments, built for real
@@ -274,7 +277,6 @@ def test_recon_part_without_a_category_is_one_sentence(tmp_path):
 
 def test_curve_method_is_checked_and_the_semicircle_keeps_the_level_set():
     from deepcurrents.errors import ConfigError
-    from deepcurrents.experiments.config import validate_config
 
     assert composed("experiment=minimal_2d").evaluation.curve.method == "phase"
     assert composed("experiment=recon_2d_semicircle").evaluation.curve.method == "level_set"

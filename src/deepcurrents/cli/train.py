@@ -13,10 +13,9 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
+from deepcurrents.experiments.config import CONFIG_DIR
 from deepcurrents.experiments.multirun import FAILED_JOB_FILE
 from deepcurrents.experiments.runner import train
-
-CONFIG_DIR = str(Path(__file__).resolve().parents[3] / "conf")
 
 
 def run_cli(cfg: DictConfig) -> float | None:

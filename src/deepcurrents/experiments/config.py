@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 from datetime import timedelta
+from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
@@ -67,8 +68,23 @@ def trainer_overrides(cfg: DictConfig) -> dict[str, Any]:
     return {"max_time": timedelta(seconds=seconds)} if seconds is not None else {}
 
 
+CONFIG_DIR = str(Path(__file__).resolve().parents[3] / "conf")  # the repository's Hydra configs
+
+
+def check_evaluation_keys(node: Any, known: Any, path: str = "evaluation") -> None:
+    """ConfigError for a key of the run's ``evaluation`` node that conf/train.yaml's does not have (the one place of
+    its settings): they are read by name, so ``+evaluation.mesh.resolutoin=64`` was ignored without a word."""
+    for key in node:
+        if key not in known:
+            raise ConfigError(f"{path}.{key} is not a setting of {path} (its settings: {', '.join(map(str, known))}).")
+        if OmegaConf.is_dict(node[key]) and OmegaConf.is_dict(known[key]):
+            check_evaluation_keys(node[key], known[key], f"{path}.{key}")
+
+
 def validate_config(cfg: DictConfig) -> None:
     """Raises ConfigError naming the first impossible value (steps, samples, evaluation sizes)."""
+    if OmegaConf.is_dict(cfg.get("evaluation")):
+        check_evaluation_keys(cfg.evaluation, OmegaConf.load(Path(CONFIG_DIR) / "train.yaml").evaluation)
     max_steps = OmegaConf.select(cfg, "trainer.max_steps")
     if max_steps != -1:  # Lightning's "no step limit"
         _positive_int(cfg, "trainer.max_steps")
