@@ -201,6 +201,21 @@ def test_text_curves_take_a_header_comments_and_blank_lines_between_loops(tmp_pa
         np.testing.assert_allclose(loop, c1)
 
 
+def test_blocks_read_as_one_loop_are_said(tmp_path, caplog):
+    """Two half-discs, each written as its arc (closed by its chord), blank-line separated: a chord is long against
+    the arc's steps, so the blocks read as one loop — silently before; now a warning says so and how to separate
+    them (the probe's run meshed 0.148 against the two half-discs' 0.283)."""
+    t = np.linspace(0, np.pi, 33)
+    upper = np.c_[0.3 * np.cos(t), 0.3 * np.sin(t) + 0.35, np.zeros(33)]
+    lower = np.c_[0.3 * np.cos(t), -0.3 * np.sin(t) - 0.35, np.zeros(33)]
+    path = tmp_path / "two_d.txt"
+    path.write_text("\n".join(" ".join(map(str, r)) for r in upper) + "\n\n"
+                    + "\n".join(" ".join(map(str, r)) for r in lower) + "\n")
+    with caplog.at_level(logging.WARNING):
+        (loop,) = read_curve_file(path)
+    assert len(loop) == 66 and "2 blank-line-separated blocks are read as ONE loop, because block 1" in caplog.text
+
+
 def test_a_curve_drawn_twice_is_warned_about(tmp_path, caplog):
     """A loop that runs round twice, or the same loop listed twice, makes α double the curve (accepted before
     without a word; the probe's runs left the loop open); two different rings say nothing."""

@@ -331,6 +331,20 @@ def test_cli_resume_errors_exit_2_without_traceback(tmp_path):
 
 
 # ------------------------------------------------------------------------------ the run directory
+@pytest.mark.parametrize("where", ["the file", "under the file"])
+def test_a_run_directory_that_is_a_file_is_one_sentence_from_the_command_line(tmp_path, where):
+    """hydra.run.dir naming a file (or a folder under one) ended in Hydra's FileExistsError traceback, exit 1:
+    Hydra makes the folder before our code runs, so the command checks it first."""
+    blocker = tmp_path / "a_file"
+    blocker.write_text("the user's file")
+    run_dir = blocker if where == "the file" else blocker / "run"
+    proc = run_command_in_process(TRAIN_COMMAND, [*TINY, f"hydra.run.dir={run_dir}"], cwd=ROOT)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == (f"error: hydra.run.dir={run_dir} cannot be made: '{blocker}' is a file, not a "
+                                   "folder; choose another run directory.")
+    assert blocker.read_text() == "the user's file"
+
+
 def test_unwritable_or_full_output_directory_stops_before_training(tmp_path, monkeypatch):
     blocker = tmp_path / "a_file"
     blocker.write_text("the user's file")

@@ -81,6 +81,24 @@ def test_bad_input_stops_before_training_with_one_sentence(tmp_path, overrides, 
     assert not (tmp_path / "checkpoints").exists()
 
 
+def test_more_torch_threads_than_cores_is_said(monkeypatch, caplog):
+    """torch_threads=999 on 2 cores ran 55x slower without a word."""
+    import logging
+
+    import lightning as L
+
+    import deepcurrents.experiments.runner as runner
+
+    monkeypatch.setattr(runner, "available_cores", lambda: 2)
+    trainer = L.Trainer(accelerator="cpu", devices=1, logger=False, enable_progress_bar=False)
+    with caplog.at_level(logging.WARNING):
+        assert training_threads(compose_cfg(["torch_threads=999"]), trainer) == 999
+        assert "torch_threads=999 is more than the 2 core(s)" in caplog.text
+        caplog.clear()
+        assert training_threads(compose_cfg(["torch_threads=2"]), trainer) == 2
+        assert "torch_threads" not in caplog.text
+
+
 def test_training_threads_leave_the_loader_workers_their_cores(monkeypatch):
     """torch_threads=auto on a CPU: each training process gets (cores // processes) − loader workers threads when
     that is fewer than torch's own choice; an integer is taken as given; null, or a run with cores to spare,
@@ -99,7 +117,7 @@ def test_training_threads_leave_the_loader_workers_their_cores(monkeypatch):
     assert threads(one, torch_threads="auto", **{"data.num_workers": 1}) == 1
     assert threads(one, torch_threads="auto", **{"data.num_workers": 0}) is None  # 2 cores: torch's 2 already
     assert threads(two, torch_threads="auto", **{"data.num_workers": 0}) == 1  # two DDP processes on 2 cores
-    assert threads(one, torch_threads=3) == 3
+    assert threads(one, torch_threads=3) == 3  # taken as given, with a warning: 3 threads on 2 cores wait on each other
     assert threads(one, torch_threads="null", **{"data.num_workers": 1}) is None
     # the final evaluation: an integer holds for the whole run, auto and null give torch's choice back
     assert evaluation_threads(compose_cfg(["torch_threads=1"])) == 1

@@ -75,9 +75,34 @@ def objective_value(metrics: dict, objective: str) -> float:
     return float(value) if value is not None else worst_value()
 
 
+def run_dir_problem(argv: list[str]) -> str | None:
+    """One sentence if the command line's ``hydra.run.dir=`` or ``hydra.sweep.dir=`` names a file, or a folder under
+    a file: Hydra makes that folder before any of our code runs, and failed there with a FileExistsError traceback."""
+    for arg in argv:
+        key, _, value = arg.lstrip("+").partition("=")
+        if key not in ("hydra.run.dir", "hydra.sweep.dir") or not value or "${" in value:
+            continue
+        path = Path(value).expanduser()
+        blocker = next((p for p in (path, *path.parents) if p.exists()), None)
+        if blocker is not None and not blocker.is_dir():
+            return (f"{key}={value} cannot be made: '{blocker}' is a file, not a folder; choose another run "
+                    "directory.")
+    return None
+
+
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
-def main(cfg: DictConfig) -> float | None:
+def hydra_main(cfg: DictConfig) -> float | None:
     return run_cli(cfg)
+
+
+def main() -> float | None:
+    """The command (``python train.py …``, ``deepcurrents-train …``): Hydra's entry point, after the run directory
+    given on the command line is checked (Hydra makes it first)."""
+    problem = run_dir_problem(sys.argv[1:])
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        sys.exit(2)
+    return hydra_main()
 
 
 if __name__ == "__main__":

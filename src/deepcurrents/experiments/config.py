@@ -107,8 +107,9 @@ def validate_config(cfg: DictConfig) -> None:
         raise ConfigError(f"trainer.precision={precision} is not supported: DeepCurrents trains in float32 "
                           f"(32-true), and {why}.")
     threads = OmegaConf.select(cfg, "torch_threads")
-    if threads not in (None, "auto"):
-        _positive_int(cfg, "torch_threads")
+    if threads not in (None, "auto") and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ConfigError(f"torch_threads={threads!r} must be a positive integer, auto (the cores left beside the "
+                          "loader workers) or null (torch's choice).")
     _positive_int(cfg, "data.num_samples")
     _positive_int(cfg, "evaluation.mass_samples")
     _positive_int(cfg, "evaluation.mass_refine")

@@ -193,7 +193,12 @@ def training_threads(cfg: DictConfig, trainer: L.Trainer) -> int | None:
     if value is None:
         return None
     if value != "auto":
-        return positive_int("torch_threads", value)
+        threads, cores = positive_int("torch_threads", value), available_cores()
+        if threads > cores and isinstance(trainer.accelerator, CPUAccelerator):
+            log.warning("torch_threads=%d is more than the %d core(s) this process may use: the threads wait on each "
+                        "other (999 on 2 cores made a 100-step run 55x slower); use at most %d, or auto.",
+                        threads, cores, cores)
+        return threads
     if not isinstance(trainer.accelerator, CPUAccelerator):
         return None
     workers = int(cfg.get("data", {}).get("num_workers", 0) or 0)

@@ -153,8 +153,14 @@ def _read_text_loops(path: Path) -> list[np.ndarray]:
                                 "numbers (comment it out with '#').") from None
         seen_row = True
     blocks = [rows for rows in blocks if rows]
-    if len(blocks) > 1 and not all(_closes(np.array(rows, dtype=np.float64)) for rows in blocks):
-        blocks = [[row for rows in blocks for row in rows]]  # spacing inside one loop, not loops
+    open_blocks = [i for i, rows in enumerate(blocks) if not _closes(np.array(rows, dtype=np.float64))]
+    if len(blocks) > 1 and open_blocks:  # spacing inside one loop, not loops
+        if sum(len(rows) >= 3 for rows in blocks) >= 2:  # blocks that could be loops: said (not double spacing)
+            log.warning("Curve file '%s': its %d blank-line-separated blocks are read as ONE loop, because block %d "
+                        "does not close on itself (its last-to-first step is over twice its median step); if they are "
+                        "separate loops (a D shape closed by its chord), write them as .obj 'l' elements.", path,
+                        len(blocks), open_blocks[0] + 1)
+        blocks = [[row for rows in blocks for row in rows]]
     if len(blocks) > 1:
         log.info("Curve file '%s': %d loops (blank lines separate them).", path, len(blocks))
     return [np.array(rows, dtype=np.float64) for rows in blocks]

@@ -246,8 +246,9 @@ def check_resumable(ckpt_path: str | Path, module: DeepCurrentsModule) -> dict[s
                       ("loop_lengths", "other boundary loops")):
         if key in saved_hp and key in own_hp and not _same(saved_hp[key], own_hp[key]):
             raise CheckpointError(
-                f"ckpt_path='{ckpt_path}' was trained for {what} than this run's data gives (the same "
-                "settings, but the files differ); resume with the data it was trained on."
+                f"ckpt_path='{ckpt_path}' was trained for {what} than this run's data gives (a file's contents, or "
+                "a setting that reshapes it such as data.normalize or data.max_vertices_per_loop, differ); resume "
+                "with the data and settings it was trained with."
             )
     saved_sd, own_sd = ckpt["state_dict"], module.state_dict()
     if not isinstance(saved_sd, dict):
