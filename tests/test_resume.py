@@ -331,6 +331,21 @@ def test_cli_resume_errors_exit_2_without_traceback(tmp_path):
 
 
 # ------------------------------------------------------------------------------ the run directory
+def test_a_refused_run_leaves_the_previous_runs_record_of_its_command(tmp_path):
+    """Hydra rewrites the run directory's .hydra/ before any check runs: a refused command into a finished run's
+    directory left .hydra/overrides.yaml saying `data.curve=trefoi` beside that run's checkpoint and metrics. The
+    command now puts the previous record back when it refuses (status 2)."""
+    run_dir = tmp_path / "run"
+    done = run_command_in_process(TRAIN_COMMAND, [*TINY, "trainer.max_steps=2", f"hydra.run.dir={run_dir}"], cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    record = {p.name: p.read_bytes() for p in (run_dir / ".hydra").iterdir()}
+    assert "overrides.yaml" in record
+    refused = run_command_in_process(TRAIN_COMMAND, [*TINY, "experiment=minimal_curve", "data.curve=trefoi",
+                                                     f"hydra.run.dir={run_dir}"], cwd=ROOT)
+    assert refused.returncode == 2 and "trefoi" in refused.stderr
+    assert {p.name: p.read_bytes() for p in (run_dir / ".hydra").iterdir()} == record
+
+
 @pytest.mark.parametrize("where", ["the file", "under the file"])
 def test_a_run_directory_that_is_a_file_is_one_sentence_from_the_command_line(tmp_path, where):
     """hydra.run.dir naming a file (or a folder under one) ended in Hydra's FileExistsError traceback, exit 1:

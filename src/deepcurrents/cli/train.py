@@ -95,14 +95,39 @@ def hydra_main(cfg: DictConfig) -> float | None:
     return run_cli(cfg)
 
 
+def given_run_dir(argv: list[str]) -> Path | None:
+    """The run directory named on the command line (``hydra.run.dir=``), if any."""
+    for arg in argv:
+        key, _, value = arg.lstrip("+").partition("=")
+        if key == "hydra.run.dir" and value and "${" not in value:
+            return Path(value).expanduser()
+    return None
+
+
 def main() -> float | None:
     """The command (``python train.py …``, ``deepcurrents-train …``): Hydra's entry point, after the run directory
-    given on the command line is checked (Hydra makes it first)."""
-    problem = run_dir_problem(sys.argv[1:])
+    given on the command line is checked (Hydra makes it first). Hydra also rewrites that directory's record of
+    the command (``.hydra/``) before any of our checks run; a run refused in one sentence (status 2) puts the
+    previous run's record back, so that nothing in the directory is changed by a refusal."""
+    argv = sys.argv[1:]
+    problem = run_dir_problem(argv)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         sys.exit(2)
-    return hydra_main()
+    run_dir = given_run_dir(argv)
+    record = run_dir / ".hydra" if run_dir is not None and "-m" not in argv and "--multirun" not in argv else None
+    saved = {p.name: p.read_bytes() for p in record.iterdir() if p.is_file()} \
+        if record is not None and record.is_dir() else None
+    try:
+        return hydra_main()
+    except SystemExit as stop:
+        if stop.code == 2 and saved is not None:  # refused: the previous run's record, as it was
+            for p in record.iterdir():
+                if p.is_file() and p.name not in saved:
+                    p.unlink()
+            for name, data in saved.items():
+                (record / name).write_bytes(data)
+        raise
 
 
 if __name__ == "__main__":
