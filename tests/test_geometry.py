@@ -201,6 +201,16 @@ def test_text_curves_take_a_header_comments_and_blank_lines_between_loops(tmp_pa
         np.testing.assert_allclose(loop, c1)
 
 
+def test_a_semicolon_separated_file_names_its_first_line_and_the_separator(tmp_path):
+    """Rows like `0.5;0.05;0`: the first was taken for a header (no token parses as a number), so the error named
+    line 2; a header needs words."""
+    path = tmp_path / "semicolon.csv"
+    path.write_text("\n".join(f"{x};{y};{z}" for x, y, z in circle(0.4, n=8)))
+    with pytest.raises(BoundaryError, match=r"line 1 \('0\.4;0\.0;0\.0'\) is not a row of numbers \(';' is not a "
+                                            r"separator: use spaces or commas\)"):
+        read_curve_file(path)
+
+
 def test_blocks_read_as_one_loop_are_said(tmp_path, caplog):
     """Two half-discs, each written as its arc (closed by its chord), blank-line separated: a chord is long against
     the arc's steps, so the blocks read as one loop — silently before; now a warning says so and how to separate

@@ -146,11 +146,12 @@ def _read_text_loops(path: Path) -> list[np.ndarray]:
         try:
             blocks[-1].append([float(t) for t in tokens])
         except ValueError:
-            if not seen_row and not any(_is_number(t) for t in tokens):
+            if not seen_row and not any(_is_number(t) for t in tokens) and any(c.isalpha() for c in raw):
                 seen_row = True
-                continue  # a header row
+                continue  # a header row (words: x,y,z), not numbers joined by another separator
+            hint = " ';' is not a separator: use spaces or commas" if ";" in raw else " comment it out with '#'"
             raise BoundaryError(f"Curve file '{path}': line {number} ({raw.strip()[:40]!r}) is not a row of "
-                                "numbers (comment it out with '#').") from None
+                                f"numbers ({hint.strip()}).") from None
         seen_row = True
     blocks = [rows for rows in blocks if rows]
     open_blocks = [i for i, rows in enumerate(blocks) if not _closes(np.array(rows, dtype=np.float64))]
