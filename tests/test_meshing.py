@@ -535,15 +535,16 @@ def test_grid_shape_counts_nodes_and_refuses_a_grid_larger_than_memory(monkeypat
     """A 1 × 0.5 × 0.25 box at 4 cells along its longest side: voxel 0.25, 5 × 3 × 2 nodes (by hand). With
     ``NODE_BYTES`` a node, the check refuses in one sentence naming the key once the nodes outgrow the memory
     available, and does not check where that cannot be read."""
+    import deepcurrents.eval.device as device
     import deepcurrents.eval.meshing.surface as surface
     from deepcurrents.errors import ConfigError
 
     bounds = np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 0.25]])
-    monkeypatch.setattr(surface, "available_memory", lambda: 30 * surface.NODE_BYTES)
+    monkeypatch.setattr(device, "available_memory", lambda: 30 * surface.NODE_BYTES)
     assert surface.grid_shape(bounds, 4) == ((5, 3, 2), 0.25)  # 30 nodes: just fits
-    monkeypatch.setattr(surface, "available_memory", lambda: 29 * surface.NODE_BYTES)
+    monkeypatch.setattr(device, "available_memory", lambda: 29 * surface.NODE_BYTES)
     with pytest.raises(ConfigError, match=r"^evaluation\.mesh\.resolution=4 asks for a 5×3×2 meshing grid") as info:
         surface.grid_shape(bounds, 4, "evaluation.mesh.resolution")
     assert "\n" not in str(info.value)
-    monkeypatch.setattr(surface, "available_memory", lambda: None)
+    monkeypatch.setattr(device, "available_memory", lambda: None)
     assert surface.grid_shape(bounds, 400)[0] == (401, 201, 101)

@@ -23,7 +23,7 @@ from deepcurrents.baselines.grid_solver import (
     grid_vertices,
 )
 from deepcurrents.errors import ConfigError, number_at_least, positive_int
-from deepcurrents.eval.device import available_memory
+from deepcurrents.eval.device import require_memory
 from deepcurrents.eval.meshing import extract_surface, mesh_method, mesh_region
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import biot_savart
@@ -52,11 +52,8 @@ GRID_CORNER_BYTES = 300
 def check_grid_memory(resolution: int, dtype: torch.dtype) -> None:
     """One sentence if an N³ grid's arrays cannot fit in the memory available here (N = 5000 asked for 1 TB in
     one allocation, a raw RuntimeError from torch's allocator)."""
-    need = GRID_CORNER_BYTES * (resolution + 1) ** 3 * torch.finfo(dtype).bits // 64
-    free = available_memory()
-    if free is not None and need > free:
-        raise ConfigError(f"model.grid.resolution={resolution} asks for about {need / 2**30:.1f} GiB of memory, but "
-                          f"{free / 2**30:.1f} GiB are available here; lower it.")
+    require_memory(f"model.grid.resolution={resolution}",
+                   GRID_CORNER_BYTES * (resolution + 1) ** 3 * torch.finfo(dtype).bits // 64)
 
 
 class GridModule(DeepCurrentsModule):

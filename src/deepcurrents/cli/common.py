@@ -110,7 +110,6 @@ def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> di
     return mesh_method(settings, getattr(module, "mesh_method", "phase"))
 
 
-
 def not_a_command(module: str) -> None:
     """For the helper modules' ``__main__``: one sentence and status 2 (``python -m deepcurrents.cli.families``
     exited 0 without a word)."""

@@ -139,6 +139,5 @@ def write_outputs(out_dir: Path, records: list[dict[str, Any]], info: dict[str, 
     return report
 
 
-
 if __name__ == "__main__":
     not_a_command("deepcurrents.cli.families")

@@ -4,6 +4,7 @@ run (or a suite of runs) into Hydra's run directory; user errors end in one sent
 from __future__ import annotations
 
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import hydra
@@ -75,19 +76,45 @@ def objective_value(metrics: dict, objective: str) -> float:
     return float(value) if value is not None else worst_value()
 
 
+def command_line_dirs(argv: list[str]) -> dict[str, Path]:
+    """The run and sweep directories the command line names (``hydra.run.dir=``, ``hydra.sweep.dir=``), by key;
+    values that Hydra interpolates are left to Hydra."""
+    dirs = {}
+    for arg in argv:
+        key, _, value = arg.lstrip("+").partition("=")
+        if key in ("hydra.run.dir", "hydra.sweep.dir") and value and "${" not in value:
+            dirs[key] = Path(value).expanduser()
+    return dirs
+
+
 def run_dir_problem(argv: list[str]) -> str | None:
     """One sentence if the command line's ``hydra.run.dir=`` or ``hydra.sweep.dir=`` names a file, or a folder under
     a file: Hydra makes that folder before any of our code runs, and failed there with a FileExistsError traceback."""
-    for arg in argv:
-        key, _, value = arg.lstrip("+").partition("=")
-        if key not in ("hydra.run.dir", "hydra.sweep.dir") or not value or "${" in value:
-            continue
-        path = Path(value).expanduser()
+    for key, path in command_line_dirs(argv).items():
         blocker = next((p for p in (path, *path.parents) if p.exists()), None)
         if blocker is not None and not blocker.is_dir():
-            return (f"{key}={value} cannot be made: '{blocker}' is a file, not a folder; choose another run "
+            return (f"{key}={path} cannot be made: '{blocker}' is a file, not a folder; choose another run "
                     "directory.")
     return None
+
+
+@contextmanager
+def record_kept_on_refusal(run_dir: Path | None):
+    """Hydra rewrites a run directory's record of the command (``.hydra/``) before any of our checks run; when the
+    command is then refused in one sentence (status 2), the previous run's record is put back as it was."""
+    record = run_dir / ".hydra" if run_dir is not None else None
+    saved = {p.name: p.read_bytes() for p in record.iterdir() if p.is_file()} \
+        if record is not None and record.is_dir() else None
+    try:
+        yield
+    except SystemExit as stop:
+        if stop.code == 2 and saved is not None:
+            for p in record.iterdir():
+                if p.is_file() and p.name not in saved:
+                    p.unlink()
+            for name, data in saved.items():
+                (record / name).write_bytes(data)
+        raise
 
 
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
@@ -95,39 +122,18 @@ def hydra_main(cfg: DictConfig) -> float | None:
     return run_cli(cfg)
 
 
-def given_run_dir(argv: list[str]) -> Path | None:
-    """The run directory named on the command line (``hydra.run.dir=``), if any."""
-    for arg in argv:
-        key, _, value = arg.lstrip("+").partition("=")
-        if key == "hydra.run.dir" and value and "${" not in value:
-            return Path(value).expanduser()
-    return None
-
-
 def main() -> float | None:
     """The command (``python train.py …``, ``deepcurrents-train …``): Hydra's entry point, after the run directory
-    given on the command line is checked (Hydra makes it first). Hydra also rewrites that directory's record of
-    the command (``.hydra/``) before any of our checks run; a run refused in one sentence (status 2) puts the
-    previous run's record back, so that nothing in the directory is changed by a refusal."""
+    given on the command line is checked (Hydra makes it first); a refused single run leaves that directory's
+    previous record of its command (:func:`record_kept_on_refusal`)."""
     argv = sys.argv[1:]
     problem = run_dir_problem(argv)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         sys.exit(2)
-    run_dir = given_run_dir(argv)
-    record = run_dir / ".hydra" if run_dir is not None and "-m" not in argv and "--multirun" not in argv else None
-    saved = {p.name: p.read_bytes() for p in record.iterdir() if p.is_file()} \
-        if record is not None and record.is_dir() else None
-    try:
+    single = "-m" not in argv and "--multirun" not in argv  # a sweep's job folders are its own, new per sweep
+    with record_kept_on_refusal(command_line_dirs(argv).get("hydra.run.dir") if single else None):
         return hydra_main()
-    except SystemExit as stop:
-        if stop.code == 2 and saved is not None:  # refused: the previous run's record, as it was
-            for p in record.iterdir():
-                if p.is_file() and p.name not in saved:
-                    p.unlink()
-            for name, data in saved.items():
-                (record / name).write_bytes(data)
-        raise
 
 
 if __name__ == "__main__":

@@ -36,6 +36,11 @@ class TargetError(UserInputError):
 
 # ------------------------------------------------------------------------------------------ reading targets
 
+
+def first_nonfinite_row(rows: np.ndarray) -> int:
+    """The index of the first row (point) of ``rows`` (N, d) that holds a NaN or an infinity, for a refusal."""
+    return int(np.flatnonzero(~np.isfinite(rows).all(1))[0])
+
 def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A triangle mesh from a file trimesh reads, cleaned for reconstruction: repeated triangles dropped, largest
     connected component (with a warning when there are several), its winding made consistent, no unreferenced
@@ -106,8 +111,8 @@ def read_oriented_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise TargetError(f"Point cloud '{path}' has {len(data)} points; it needs at least 10.")
     pts, nrm = data[:, :3], data[:, 3:6]
     if not np.isfinite(pts).all():
-        row = int(np.flatnonzero(~np.isfinite(pts).all(1))[0])
-        raise TargetError(f"Point cloud '{path}' has NaN or infinite coordinates (first in point {row}).")
+        raise TargetError(f"Point cloud '{path}' has NaN or infinite coordinates (first in point "
+                          f"{first_nonfinite_row(pts)}).")
     norm = np.linalg.norm(nrm, axis=1)
     if not (np.isfinite(nrm).all() and (norm > 1e-12).all()):
         raise TargetError(f"Point cloud '{path}' has NaN, infinite or zero-length normals.")
@@ -428,8 +433,8 @@ class CurveMetricDataModule(L.LightningDataModule):
                 raise ConfigError("data.curve must be 'semicircle' or an open polyline of at least two [x, y] points "
                                   "(numbers), e.g. data.curve=[[-0.5,0],[0,0.5],[0.5,0]].")
             if not np.isfinite(pts).all():
-                row = int(np.flatnonzero(~np.isfinite(pts).all(1))[0])
-                raise ConfigError(f"data.curve has NaN or infinite coordinates (first in point {row}).")
+                raise ConfigError(f"data.curve has NaN or infinite coordinates (first in point "
+                                  f"{first_nonfinite_row(pts)}).")
             if np.abs(pts).max() >= 1:
                 raise ConfigError("data.curve must lie inside the domain (-1, 1)^2, where the samples are drawn.")
             if np.linalg.norm(pts[0] - pts[-1]) < 1e-9:

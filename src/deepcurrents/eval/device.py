@@ -7,6 +7,8 @@ from pathlib import Path
 
 import torch
 
+from deepcurrents.errors import ConfigError
+
 
 def device_of(module) -> torch.device:
     """The device of a module's first parameter; the CPU for a module without parameters (or no module)."""
@@ -42,3 +44,15 @@ def available_memory() -> int | None:
     except (OSError, ValueError):
         pass
     return free
+
+
+def require_memory(setting: str, need: int, what: str = "") -> None:
+    """ConfigError when ``need`` bytes cannot fit in the memory available here (:func:`available_memory`; no check
+    where it cannot be read): "<setting> asks for <what>about N GiB of memory, but M GiB are available here; lower
+    it." ``setting`` is the key and value (``model.grid.resolution=5000``), ``what`` what it asks for (``a
+    100001×100001 grid, ``), so a size that cannot fit is one sentence before the allocation fails."""
+    free = available_memory()
+    if free is not None and need > free:
+        raise ConfigError(f"{setting} asks for {what}about {need / 2**30:.1f} GiB of memory, but "
+                          f"{free / 2**30:.1f} GiB are available here; lower it.")
+

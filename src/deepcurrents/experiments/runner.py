@@ -348,8 +348,7 @@ def check_suite_overrides(cfg: DictConfig, inherited: list[str]) -> None:
     …, ``PROBLEM_CHOICE_KEYS``) of a suite whose members solve different problems: every member would then solve
     the same one under its own name (``experiment=fig4 data.curve=circle`` ran the circle six times and labelled the
     rows trefoil, hopf and borromean; ``experiment=table1 data.mesh=…`` would reconstruct one mesh as four parts)."""
-    chosen = [o for o in inherited if o.lstrip("+~").split("=", 1)[0].startswith("data.")
-              and o.lstrip("+~").split("=", 1)[0].split(".", 1)[1] in PROBLEM_CHOICE_KEYS]
+    chosen = [o for o in inherited if o.lstrip("+~").split("=", 1)[0] in {f"data.{k}" for k in PROBLEM_CHOICE_KEYS}]
     if not chosen:
         return
     problems = {}

@@ -19,8 +19,7 @@ import torch
 from scipy.ndimage import map_coordinates
 from skimage.measure import find_contours
 
-from deepcurrents.errors import ConfigError
-from deepcurrents.eval.device import available_memory, device_of
+from deepcurrents.eval.device import device_of, require_memory
 from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.level_set import aligned_with_grad_f
 from deepcurrents.eval.meshing.surface import NODE_BYTES
@@ -51,10 +50,8 @@ def good_runs(points: np.ndarray, good: np.ndarray) -> list[np.ndarray]:
 def check_curve_grid(resolution: int, key: str = "resolution") -> None:
     """One sentence naming ``key`` when the (resolution + 1)² grid of a 2D current's curve cannot fit in the memory
     available here (``NODE_BYTES`` a node, as a mesh's; 100000 asked numpy for 75 GiB after the training)."""
-    need, free = NODE_BYTES * (int(resolution) + 1) ** 2, available_memory()
-    if free is not None and need > free:
-        raise ConfigError(f"{key}={resolution} asks for a {resolution + 1}×{resolution + 1} grid, about "
-                          f"{need / 2**30:.1f} GiB of memory, but {free / 2**30:.1f} GiB are available here; lower it.")
+    require_memory(f"{key}={resolution}", NODE_BYTES * (int(resolution) + 1) ** 2,
+                   f"a {resolution + 1}×{resolution + 1} grid, ")
 
 
 @torch.no_grad()

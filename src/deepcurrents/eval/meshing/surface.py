@@ -29,8 +29,7 @@ import torch
 import trimesh
 from skimage.measure import marching_cubes
 
-from deepcurrents.errors import ConfigError
-from deepcurrents.eval.device import available_memory, device_of
+from deepcurrents.eval.device import device_of, require_memory
 from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
 from deepcurrents.eval.meshing.level_set import LevelSetMethod
@@ -134,11 +133,8 @@ def grid_shape(bounds: np.ndarray, resolution: int, key: str = "resolution") -> 
     extent = bounds[1] - bounds[0]
     voxel = float(extent.max()) / resolution
     shape = tuple(int(s) for s in np.maximum(2, np.ceil(extent / voxel).astype(int) + 1))
-    need, free = NODE_BYTES * math.prod(shape), available_memory()
-    if free is not None and need > free:
-        raise ConfigError(f"{key}={resolution} asks for a {shape[0]}×{shape[1]}×{shape[2]} meshing grid, about "
-                          f"{need / 2**30:.1f} GiB of memory, but {free / 2**30:.1f} GiB are available here; "
-                          "lower it.")
+    require_memory(f"{key}={resolution}", NODE_BYTES * math.prod(shape),
+                   f"a {shape[0]}×{shape[1]}×{shape[2]} meshing grid, ")
     return shape, voxel
 
 
