@@ -226,6 +226,31 @@ def test_blocks_read_as_one_loop_are_said(tmp_path, caplog):
     assert len(loop) == 66 and "2 blank-line-separated blocks are read as ONE loop, because block 1" in caplog.text
 
 
+def test_a_curve_written_open_is_said_to_be_closed_by_its_last_step(tmp_path, caplog):
+    """A half-circle arc written as a polyline (.txt, .npy, one .obj 'l' element, .obj vertices only) is closed by its
+    diameter, as every loop is: silently before, now with a warning naming the loop; the closed ring (written with or
+    without its first vertex repeated) and a pentagon with one long side say nothing."""
+    t = np.linspace(0, np.pi, 17)
+    arc = np.c_[0.4 * np.cos(t), 0.4 * np.sin(t), np.zeros(17)]
+    ring = circle(0.4, n=16)
+    house = np.array([[0, 0, 0], [0.5, 0, 0], [0.5, 0.3, 0], [0.25, 0.5, 0], [0, 0.3, 0]], dtype=float)
+    np.savetxt(tmp_path / "arc.txt", arc)
+    np.save(tmp_path / "arc.npy", arc)
+    write_curve_file(tmp_path / "arc.obj", [arc])
+    (tmp_path / "arc_vertices.obj").write_text("".join(f"v {x} {y} {z}\n" for x, y, z in arc))
+    write_curve_file(tmp_path / "ring.obj", [ring])
+    np.savetxt(tmp_path / "ring_repeated.txt", np.concatenate([ring, ring[:1]]))
+    np.savetxt(tmp_path / "house.txt", np.roll(house, -1, axis=0))  # its long side (0.5) closes it; others 0.3–0.32
+    for name, open_ in (("arc.txt", True), ("arc.npy", True), ("arc.obj", True), ("arc_vertices.obj", True),
+                        ("ring.obj", False), ("ring_repeated.txt", False), ("house.txt", False)):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            (loop,) = read_curve_file(tmp_path / name)
+        said = "loop 0 does not come back to its start (its last vertex is 0.8 from its first"
+        assert (said in caplog.text) == open_, name
+        assert len(loop) == (17 if open_ else 5 if name == "house.txt" else 16)
+
+
 def test_a_curve_drawn_twice_is_warned_about(tmp_path, caplog):
     """A loop that runs round twice, or the same loop listed twice, makes α double the curve (accepted before
     without a word; the probe's runs left the loop open); two different rings say nothing."""

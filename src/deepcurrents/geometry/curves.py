@@ -126,8 +126,24 @@ def read_curve_file(path: str | Path) -> list[np.ndarray]:
             raise BoundaryError(
                 f"Curve file '{path}': loop {i} must have 3 coordinates per vertex, got shape {loop.shape}."
             )
+    if suffix != ".obj":  # .obj files say so for their 'l' elements (_read_obj_polylines)
+        _warn_open_loops(loops, path)
     # a loop written closed (last vertex = first) is the same loop
     return [lp[:-1] if len(lp) > 1 and np.array_equal(lp[0], lp[-1]) else lp for lp in loops]
+
+
+def _warn_open_loops(loops: list[np.ndarray], path: Path) -> None:
+    """A warning for each loop (M, 3) whose closing step (last vertex to first) is over twice its longest other step:
+    a curve written open (an arc, a polyline), which is closed by that straight step, as every boundary loop is."""
+    for i, loop in enumerate(loops):
+        if loop.ndim != 2 or len(loop) < 3:
+            continue  # refused later (validate_loops), in one sentence
+        longest = float(np.linalg.norm(np.diff(loop, axis=0), axis=1).max())
+        gap = float(np.linalg.norm(loop[-1] - loop[0]))
+        if gap > 2 * longest:
+            log.warning("Curve file '%s': loop %d does not come back to its start (its last vertex is %.3g from its "
+                        "first, %.1f× its longest step); it is closed by that straight step, as every boundary "
+                        "loop is.", path, i, gap, gap / longest)
 
 
 def _read_text_loops(path: Path) -> list[np.ndarray]:
@@ -219,6 +235,7 @@ def _read_obj_polylines(path: Path) -> list[np.ndarray]:
             raise BoundaryError(f"Curve file '{path}' holds a mesh (f elements) but no 'l' polylines; give the "
                                 "boundary curve as 'l' elements (a mesh to reconstruct goes to experiment=recon_mesh "
                                 "data.mesh=…).")
+        _warn_open_loops([v], path)
         return [v]  # vertices only: one loop in file order
     # a vertex written once per segment is one vertex (copies within a millionth of the curve's size: printed
     # with fewer digits, they need not be equal)
@@ -228,6 +245,8 @@ def _read_obj_polylines(path: Path) -> list[np.ndarray]:
         if not idx or min(idx) < 0 or max(idx) >= len(v):
             raise BoundaryError(f"Curve file '{path}' has an 'l' element referring to a missing vertex.")
         lines[k] = [int(same[i]) for i in idx]
+    # elements of three or more vertices come first in the loops returned; chains of segments say so themselves
+    _warn_open_loops([v[idx] for idx in lines if len(idx) != 2], path)
     return [v[idx] for idx in _join_segments(lines, path)]
 
 
