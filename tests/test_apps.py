@@ -2,6 +2,7 @@
 launcher configs: on a tiny disk (circle boundary) trained once for the whole module."""
 
 import json
+import os
 import pickle
 import subprocess
 import sys
@@ -50,6 +51,25 @@ def test_run_leaves_media_files(run):
     assert (run / "render.png").is_file()  # the final render (MediaCallback.on_final_evaluation)
     assert (run / "media" / "render_step0000100.png").is_file()  # every_n_steps
     assert iio.imread(run / "render.png").shape == (16, 16, 3)
+
+
+def test_the_logger_records_the_runs_whole_config(run):
+    """The logged config is the run's (data, trainer, seed), in place of Lightning's record of the module's
+    arguments, which lacked them and carried every vertex of Γ."""
+    logged = yaml.safe_load((run / "csv" / "version_0" / "hparams.yaml").read_text())
+    assert logged["data"]["curve"] == "circle" and logged["trainer"]["max_steps"] == 200 and logged["seed"] == 0
+    assert "boundary" not in logged
+
+
+def test_a_suite_members_wandb_run_is_named_and_grouped_by_the_suite(tmp_path):
+    from deepcurrents.experiments.loggers import build_logger
+
+    cfg = compose_cfg(["experiment=minimal_trefoil", "logger=wandb"])
+    logger = build_logger(cfg, tmp_path / "suite" / "no_rff", member="no_rff")
+    assert logger._wandb_init["name"] == "minimal_trefoil/no_rff"
+    assert logger._wandb_init["group"] == str(tmp_path / "suite")
+    cfg.logger.group = "mine"
+    assert build_logger(cfg, tmp_path / "suite" / "no_rff", member="no_rff")._wandb_init["group"] == "mine"
 
 
 def test_load_module_rebuilds_the_model_with_its_config(run):
@@ -254,6 +274,24 @@ def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     assert best["best_value"] == pytest.approx(min(values))
     table = (sweep / "table.md").read_text().splitlines()
     assert len(table) == 4 and table[0].startswith("| run | mass_area |")  # header, rule, two trials
+
+
+@pytest.mark.slow
+def test_each_sweep_job_logs_its_own_wandb_run(tmp_path):
+    """W&B keeps one run per process until it is finished, and Lightning's finalize does not finish it: every job
+    after the first logged into job 0's run (its config and summary overwritten by the last job's, the last job's
+    final rows dropped as out of order). Now each job has its own offline run."""
+    sweep = tmp_path / "sweep"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "train.py"), "-m", *TINY_SWEEP, "logger=wandb", "model.optim.lr=1e-3,3e-3",
+         f"hydra.sweep.dir={sweep}"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600, env={**os.environ, "WANDB_MODE": "offline",
+                                                                     "WANDB_SILENT": "true"},
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "already in progress" not in proc.stderr
+    for job in ("0", "1"):
+        assert len(list((sweep / job / "wandb").glob("offline-run-*"))) == 1, job  # job 1 had none
 
 
 @pytest.mark.slow

@@ -42,6 +42,7 @@ from omegaconf import DictConfig, OmegaConf
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.metrics import metrics_json
 from deepcurrents.experiments.config import trainer_overrides, validate_config
+from deepcurrents.experiments.loggers import LogRunConfig, build_logger, finished_loggers, run_config
 from deepcurrents.experiments.run_dir import (
     RunLock,
     check_free_space,
@@ -138,15 +139,6 @@ def output_dir(cfg: DictConfig) -> Path:
     return Path(cfg.paths.output_dir)
 
 
-def build_logger(cfg: DictConfig, out_dir: Path):
-    if cfg.get("logger") is None:
-        return False
-    kwargs = {}
-    if "save_dir" in cfg.logger:
-        kwargs["save_dir"] = str(out_dir)
-    return instantiate(cfg.logger, **kwargs)
-
-
 def build_callbacks(cfg: DictConfig, out_dir: Path) -> list:
     callbacks = []
     for name, cb in (cfg.get("callbacks") or {}).items():
@@ -240,7 +232,8 @@ def build(cfg: DictConfig):
     return datamodule, module
 
 
-def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None = None) -> dict[str, Any] | None:
+def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None = None,
+          member: str | None = None) -> dict[str, Any] | None:
     """Trains and evaluates one run into ``out_dir`` (default: the run directory); returns its metrics
     (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (:func:`run_suite`).
 
@@ -249,17 +242,18 @@ def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None 
     and a checkpoint to resume from (``ckpt_path=FILE|auto``) must be a DeepCurrents checkpoint of this model
     kind and problem (models.loading.check_resumable). SIGTERM or SIGUSR1 (preemption) or Ctrl-C writes
     ``checkpoints/last.ckpt`` after the running step and ends the process with status 143 (Ctrl-C: 130);
-    ``ckpt_path=auto`` continues from it.
+    ``ckpt_path=auto`` continues from it. ``member``: the suite member this run is (its logged run's name).
     """
     out_dir = make_run_dir(Path(out_dir) if out_dir is not None else output_dir(cfg))
     with RunLock(out_dir) if is_global_rank_zero() else nullcontext():
         if cfg.get("suite"):
             run_suite(cfg, out_dir)
             return None
-        return _train_one(cfg, out_dir, resume_hint)
+        return _train_one(cfg, out_dir, resume_hint, member)
 
 
-def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None) -> dict[str, Any] | None:
+def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
+               member: str | None = None) -> dict[str, Any] | None:
     validate_config(cfg)
     keep_freed_memory()
     L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
@@ -279,56 +273,58 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None) -
     preemption = PreemptionCheckpoint(last)
     trainer: L.Trainer = build_trainer(
         cfg,
-        logger=build_logger(cfg, out_dir),
-        callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), preemption],
+        logger=build_logger(cfg, out_dir, member),
+        callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), preemption, LogRunConfig(run_config(cfg))],
         plugins=[AtomicCheckpointIO()],
         default_root_dir=str(out_dir),
+        enable_autolog_hparams=False,  # LogRunConfig logs the whole config instead of the module's arguments
         **trainer_overrides(cfg),  # max_time in seconds → timedelta
     )
-    threads = training_threads(cfg, trainer)
-    if threads is not None:
-        log.info("Training with %d torch thread(s) beside %s loader worker(s) (torch_threads).", threads,
-                 cfg.data.get("num_workers", 0))
-    try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
-        with torch_threads(threads):
-            trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
-    except MisconfigurationException as err:  # a trainer setting Lightning checks only once fitting runs
-        text = " ".join(str(err).split()).rstrip(".")
-        raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
-    except SIGTERMException:
-        name = preemption.signal_name
-        if trainer.is_global_zero:
-            hint = resume_hint or f"Continue with ckpt_path=auto hydra.run.dir={out_dir}."
-            log.warning("Stopped by %s at step %d; %s holds it. %s", "Ctrl-C" if name == "SIGINT" else name,
-                        trainer.global_step, last, hint)
-        raise SystemExit(130 if name == "SIGINT" else 143) from None
-    # the final state, whatever step it ended on (periodic checkpoints may be older)
-    trainer.save_checkpoint(last, weights_only=False)
-    if trainer.interrupted:
-        log.warning("Training was interrupted; evaluating the model as it is.")
-    elif resumed_step is not None and trainer.global_step == resumed_step and trainer.is_global_zero:
-        log.warning("No step was trained: %s had already used the run's budget (trainer.max_steps, trainer.max_time); "
-                    "the final evaluation scores it as it is.", resume)
-    if not trainer.is_global_zero:
-        return None
-    started = time.perf_counter()
-    with torch_threads(evaluation_threads(cfg)):
-        metrics = module.final_evaluation(out_dir)
-    if metrics is not None:  # the final evaluation's own cost, beside train_seconds (issue: at most a fifth of it)
-        metrics["evaluation_seconds"] = round(time.perf_counter() - started, 3)
-        module.write_metrics(out_dir, metrics)
-    log.info("metrics: %s", json.dumps(metrics))
-    for cb in trainer.callbacks:  # final media (deepcurrents.models.callbacks.MediaCallback) before loggers close
-        hook = getattr(cb, "on_final_evaluation", None)
-        if callable(hook):
-            hook(trainer, module, metrics, out_dir)
-    for lg in trainer.loggers:
-        lg.log_metrics({f"final/{k}": v for k, v in metrics.items() if isinstance(v, (int, float))},
-                       step=int(module.global_step))
-        if hasattr(lg, "experiment") and hasattr(lg.experiment, "summary"):
-            lg.experiment.summary.update({f"final/{k}": v for k, v in metrics.items()})
-        lg.finalize("success")
-    return metrics
+    with finished_loggers(trainer):  # one logged run per job: the next job of a sweep or suite starts its own
+        threads = training_threads(cfg, trainer)
+        if threads is not None:
+            log.info("Training with %d torch thread(s) beside %s loader worker(s) (torch_threads).", threads,
+                     cfg.data.get("num_workers", 0))
+        try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
+            with torch_threads(threads):
+                trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
+        except MisconfigurationException as err:  # a trainer setting Lightning checks only once fitting runs
+            text = " ".join(str(err).split()).rstrip(".")
+            raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
+        except SIGTERMException:
+            name = preemption.signal_name
+            if trainer.is_global_zero:
+                hint = resume_hint or f"Continue with ckpt_path=auto hydra.run.dir={out_dir}."
+                log.warning("Stopped by %s at step %d; %s holds it. %s", "Ctrl-C" if name == "SIGINT" else name,
+                            trainer.global_step, last, hint)
+            raise SystemExit(130 if name == "SIGINT" else 143) from None
+        # the final state, whatever step it ended on (periodic checkpoints may be older)
+        trainer.save_checkpoint(last, weights_only=False)
+        if trainer.interrupted:
+            log.warning("Training was interrupted; evaluating the model as it is.")
+        elif resumed_step is not None and trainer.global_step == resumed_step and trainer.is_global_zero:
+            log.warning("No step was trained: %s had already used the run's budget (trainer.max_steps, "
+                        "trainer.max_time); the final evaluation scores it as it is.", resume)
+        if not trainer.is_global_zero:
+            return None
+        started = time.perf_counter()
+        with torch_threads(evaluation_threads(cfg)):
+            metrics = module.final_evaluation(out_dir)
+        if metrics is not None:  # the final evaluation's own cost, beside train_seconds (issue: at most a fifth of it)
+            metrics["evaluation_seconds"] = round(time.perf_counter() - started, 3)
+            module.write_metrics(out_dir, metrics)
+        log.info("metrics: %s", json.dumps(metrics))
+        for cb in trainer.callbacks:  # final media (deepcurrents.models.callbacks.MediaCallback) before loggers close
+            hook = getattr(cb, "on_final_evaluation", None)
+            if callable(hook):
+                hook(trainer, module, metrics, out_dir)
+        for lg in trainer.loggers:
+            lg.log_metrics({f"final/{k}": v for k, v in metrics.items() if isinstance(v, (int, float))},
+                           step=int(module.global_step))
+            if hasattr(lg, "experiment") and hasattr(lg.experiment, "summary"):
+                lg.experiment.summary.update({f"final/{k}": v for k, v in metrics.items()})
+            lg.finalize("success")
+        return metrics
 
 
 def inherited_overrides() -> list[str]:
@@ -389,7 +385,7 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
         command = " ".join(shlex.quote(o) for o in [*overrides, "ckpt_path=auto", f"hydra.run.dir={member_dir}"])
         hint = (f"The suite continues with its command and ckpt_path=auto hydra.run.dir={out_dir} (each member from "
                 f"its own checkpoint), or this member ({name}) alone with `python train.py {command}`.")
-        metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint)
+        metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint, member=name)
         results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
     (out_dir / "suite.json").write_text(metrics_json(results))
     report = cfg.suite.get("report") or "deepcurrents.experiments.tables.write_table"
