@@ -236,6 +236,30 @@ def test_a_suite_refuses_an_override_that_would_make_its_members_one_problem(tmp
     assert not any(tmp_path.iterdir())
 
 
+def test_a_suite_refuses_overrides_that_merge_its_variants_or_that_a_member_cannot_take(tmp_path):
+    """experiment=hand_ablation ablation=relu made all five variants the ReLU run under five names; table1 with
+    model.surface_weight=2 trained the first member, then stopped at the baseline in Hydra's words ("use +…"). Both
+    are one sentence before any member trains; settings every member takes (preset, data.category) pass."""
+    from deepcurrents.experiments.runner import check_suite_variants, compose_members, run_suite
+
+    table1, ablation = (compose_cfg([f"experiment={e}"]) for e in ("table1", "hand_ablation"))
+    with hydra_context():
+        for override, key in (("ablation=relu", "model.rff.enabled"), ("model.net.activation=relu",
+                                                                      "model.net.activation")):
+            with pytest.raises(ConfigError, match=rf"^The command line's {override} would make suite members "
+                                                  rf"\w+ and \w+ the same run \(they differ in .*{key}"):
+                run_suite(ablation, tmp_path, extra_overrides=[override, "preset=cpu"])
+        with pytest.raises(ConfigError, match=r"^Suite member baseline_head cannot run with the command line's "
+                                              r"overrides \(model\.surface_weight=2\).*no such setting\)\.$"):
+            run_suite(table1, tmp_path, extra_overrides=["model.surface_weight=2"])
+        with pytest.raises(ConfigError, match=r"^Suite member baseline_head .*model\.surface_weight is not a setting "
+                                              r"ClosestPointModule takes"):
+            run_suite(table1, tmp_path, extra_overrides=["ablation=no_surface_loss"])
+        overrides = ["preset=cpu", "data.category=feet"]
+        check_suite_variants(ablation, overrides, compose_members(ablation, overrides, tmp_path))
+    assert not any(tmp_path.iterdir())
+
+
 @pytest.mark.slow
 def test_fig4_suite_writes_its_figure_and_table(tmp_path):
     cfg = compose_cfg(["experiment=fig4"])

@@ -18,6 +18,7 @@ The command ``python train.py …`` (``deepcurrents.cli.train``) is a thin wrapp
 from __future__ import annotations
 
 import ctypes
+import inspect
 import json
 import logging
 import os
@@ -33,7 +34,7 @@ import hydra
 import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
-from hydra.errors import InstantiationException
+from hydra.errors import ConfigCompositionException, InstantiationException
 from lightning.pytorch.accelerators import CPUAccelerator
 from lightning.pytorch.callbacks.progress import ProgressBar
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
@@ -366,6 +367,94 @@ def check_suite_overrides(cfg: DictConfig, inherited: list[str]) -> None:
                           "recon_mesh).")
 
 
+def member_overrides(member: DictConfig, inherited: list[str]) -> list[str]:
+    """A suite member's overrides: its own, then the command line's (Hydra's own settings left out), then its
+    ``final_overrides`` (what the member's role fixes whatever the command line says)."""
+    return (list(member.overrides) + [o for o in inherited if not o.startswith("hydra.")]
+            + list(member.get("final_overrides") or []))
+
+
+def compose_members(cfg: DictConfig, inherited: list[str], out_dir: Path) -> dict[str, tuple[list[str], DictConfig]]:
+    """Every member's overrides and config, composed and checked before any member trains: a command-line override
+    that a member cannot take (``experiment=table1 model.surface_weight=2`` reaches the closest-point baselines,
+    which have no such setting) was found only when that member's turn came, after the members before it had
+    trained, in Hydra's words or as "a misspelt key". → {name: (overrides, config)}."""
+    members = {}
+    for member in cfg.suite.runs:
+        name, overrides = str(member.name), member_overrides(member, inherited)
+        try:
+            member_cfg = hydra.compose(config_name="train",
+                                       overrides=overrides + [f"paths.output_dir={out_dir / name}"])
+            validate_config(member_cfg)
+            for group in ("model", "data"):
+                check_constructor_keys(member_cfg, group)
+        except (ConfigError, ConfigCompositionException) as err:
+            text = " ".join(str(err).split()).rstrip(".")
+            if isinstance(err, ConfigCompositionException):  # Hydra's advice to add the key with '+' cannot help
+                text = str(err).splitlines()[0].rstrip(".") + " (this member has no such setting)"
+            raise ConfigError(f"Suite member {name} cannot run with the command line's overrides "
+                              f"({' '.join(inherited) or 'none'}), which reach every member: {text}.") from None
+        members[name] = (overrides, member_cfg)
+    return members
+
+
+def check_constructor_keys(cfg: DictConfig, group: str) -> None:
+    """ConfigError if ``cfg[group]`` holds a top-level key that its ``_target_``'s constructor does not take (what
+    :func:`instantiate` finds when the member is built; found here before any member trains)."""
+    node = cfg.get(group)
+    target = node.get("_target_") if OmegaConf.is_dict(node) else None
+    if target is None:
+        return
+    params = inspect.signature(hydra.utils.get_class(str(target))).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return
+    unknown = [k for k in node if not str(k).startswith("_") and k not in params]
+    if unknown:
+        raise ConfigError(f"{group}.{unknown[0]} is not a setting {str(target).rsplit('.', 1)[-1]} takes.")
+
+
+def _leaves(cfg: DictConfig) -> dict[str, str]:
+    """A config's settings as {dotted key: repr of the value}, unresolved (interpolations as written)."""
+    flat: dict[str, str] = {}
+
+    def walk(value, path: str) -> None:
+        if isinstance(value, dict) and value:
+            for key, child in value.items():
+                walk(child, f"{path}.{key}" if path else str(key))
+        else:
+            flat[path] = repr(value)
+
+    walk(OmegaConf.to_container(cfg, resolve=False), "")
+    flat.pop("paths.output_dir", None)  # the member's own directory
+    return flat
+
+
+def check_suite_variants(cfg: DictConfig, inherited: list[str],
+                         members: dict[str, tuple[list[str], DictConfig]]) -> None:
+    """ConfigError if the command line's overrides make two members that differ in the suite's own config the same
+    run: ``experiment=hand_ablation ablation=relu`` (or ``model.net.activation=relu``) made all five variants the
+    ReLU run, and the table and figure labelled them as five."""
+    if not any(not o.startswith("hydra.") for o in inherited):
+        return
+    own = {str(m.name): _leaves(hydra.compose(config_name="train", overrides=member_overrides(m, [])))
+           for m in cfg.suite.runs}
+    given = {name: _leaves(member_cfg) for name, (_, member_cfg) in members.items()}
+    names = list(given)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            if given[a] != given[b] or own[a] == own[b]:
+                continue
+            keys = sorted(k for k in own[a].keys() | own[b].keys() if own[a].get(k) != own[b].get(k))
+            set_by_members = {o.lstrip("+~").split("=", 1)[0] for m in cfg.suite.runs for o in m.overrides}
+            culprits = [o for o in inherited if (key := o.lstrip("+~").split("=", 1)[0]) in set_by_members
+                        or any(k == key or k.startswith(key + ".") for k in keys)] or inherited
+            shown = ", ".join(f"{k} ({a}: {own[a].get(k, 'unset')}, {b}: {own[b].get(k, 'unset')})" for k in keys[:3])
+            raise ConfigError(f"The command line's {' '.join(culprits)} would make suite members {a} and {b} the same "
+                              f"run (they differ in {shown}), so the suite would report one variant under two names; "
+                              f"run the variant you want with its own experiment instead (e.g. `python train.py "
+                              f"{members[a][0][0]} {' '.join(culprits)}`).")
+
+
 def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:
     """Runs every member of ``cfg.suite`` into ``out_dir/<name>`` and calls the report. → member results.
 
@@ -374,14 +463,12 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
     ``trainer.max_steps`` given for the suite must not stop it first)."""
     inherited = inherited_overrides() if extra_overrides is None else list(extra_overrides)
     check_suite_overrides(cfg, inherited)
+    members = compose_members(cfg, inherited, out_dir)  # every member checked before the first one trains
+    check_suite_variants(cfg, inherited, members)
     results = []
-    for member in cfg.suite.runs:
-        name = str(member.name)
-        overrides = (list(member.overrides) + [o for o in inherited if not o.startswith("hydra.")]
-                     + list(member.get("final_overrides") or []))
+    for name, (overrides, member_cfg) in members.items():
         member_dir = out_dir / name
         log.info("suite member %s: %s", name, " ".join(overrides))
-        member_cfg = hydra.compose(config_name="train", overrides=overrides + [f"paths.output_dir={member_dir}"])
         command = " ".join(shlex.quote(o) for o in [*overrides, "ckpt_path=auto", f"hydra.run.dir={member_dir}"])
         hint = (f"The suite continues with its command and ckpt_path=auto hydra.run.dir={out_dir} (each member from "
                 f"its own checkpoint), or this member ({name}) alone with `python train.py {command}`.")
