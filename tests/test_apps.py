@@ -265,7 +265,8 @@ def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     sweep = tmp_path / "sweep"
     proc = subprocess.run(
         [sys.executable, str(ROOT / "train.py"), "-m", "hparams_search=minimal_optuna", *TINY_SWEEP,
-         "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={sweep}"],
+         "hydra.sweeper.n_trials=2", f"hydra.sweep.dir={sweep}",
+         f"hydra.sweeper.storage=sqlite:///{tmp_path / 'optuna.db'}"],  # the README's way to keep a study
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -274,6 +275,10 @@ def test_optuna_sweep_runs_two_tiny_trials(tmp_path):
     assert best["best_value"] == pytest.approx(min(values))
     table = (sweep / "table.md").read_text().splitlines()
     assert len(table) == 4 and table[0].startswith("| run | mass_area |")  # header, rule, two trials
+    import optuna  # the study is in the database (optuna 2 with SQLAlchemy 2 failed here with an AssertionError)
+
+    study = optuna.load_study(study_name="minimal_trefoil", storage=f"sqlite:///{tmp_path / 'optuna.db'}")
+    assert len(study.trials) == 2 and study.best_value == pytest.approx(best["best_value"])
 
 
 @pytest.mark.slow
