@@ -299,3 +299,20 @@ def test_the_quick_start_is_the_fast_recipe_at_1500_steps():
     assert cfg.data.sampling.kind == "importance" and cfg.evaluation.mass_refine_mesh is True
     plain = compose_cfg(["experiment=minimal_trefoil", "preset=cpu"])
     assert plain.model.net.phase_sharpening == 0 and plain.data.sampling.kind == "uniform"
+
+
+def test_a_schedule_setting_the_runs_schedule_does_not_read_is_warned_about(caplog):
+    """preset=cpu's cosine schedule ignores gamma and step_size, preset=paper's step schedule warmup and min_factor:
+    the W&B sweep searched gamma under preset=cpu, and minimal_optuna min_factor under preset=paper, without a
+    word."""
+    import logging
+
+    from deepcurrents.experiments.config import warn_unread_schedule_settings
+
+    settings = ["model.optim.gamma=0.4", "model.optim.min_factor=0.1", "model.optim.lr=1e-3"]
+    for preset, unread, read in (("cpu", "gamma=0.4", "min_factor=0.1"), ("paper", "min_factor=0.1", "gamma=0.4")):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            warn_unread_schedule_settings(composed("experiment=minimal_trefoil", f"preset={preset}"), settings)
+        assert f"model.optim.{unread} changes nothing" in caplog.text and read not in caplog.text
+        assert "lr=" not in caplog.text

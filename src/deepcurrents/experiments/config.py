@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import re
 from datetime import timedelta
 from pathlib import Path
@@ -12,6 +13,9 @@ from omegaconf import DictConfig, OmegaConf
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import CURVE_METHODS, MESH_METHOD_CHOICES
 from deepcurrents.eval.meshing.curve_2d import check_curve_grid
+from deepcurrents.models.schedules import SCHEDULE_KEYS
+
+log = logging.getLogger(__name__)
 
 
 def _positive_int(cfg: DictConfig, key: str, minimum: int = 1) -> None:
@@ -148,3 +152,20 @@ def validate_config(cfg: DictConfig) -> None:
         # the near samples' importance weights are folded into the metric, so E|ω| would not be the mass
         raise ConfigError("model.mass_weight needs uniform ambient samples; data.sampling.kind=near weights "
                           "them into the metric only.")
+
+
+def warn_unread_schedule_settings(cfg: DictConfig, overrides: list[str]) -> None:
+    """A warning for each command-line override (a sweep's swept values included) of a ``model.optim`` setting that
+    the run's schedule does not read: ``preset=cpu`` uses the cosine schedule, which ignores ``gamma`` and
+    ``step_size``, and ``preset=paper`` the step schedule, which ignores ``warmup`` and ``min_factor``; a sweep
+    over them searched a dimension that changed nothing, without a word."""
+    schedule = OmegaConf.select(cfg, "model.optim.schedule", default=None)
+    if schedule not in SCHEDULE_KEYS:
+        return
+    unread = {f"model.optim.{k}" for other, keys in SCHEDULE_KEYS.items() if other != schedule for k in keys}
+    for override in overrides:
+        key, _, value = override.lstrip("+~").partition("=")
+        if key in unread:
+            log.warning("%s=%s changes nothing: model.optim.schedule=%s reads %s, not it (preset=cpu and the recipes "
+                        "use the cosine schedule, preset=paper the step one).", key, value, schedule,
+                        " and ".join(SCHEDULE_KEYS[schedule]))

@@ -42,7 +42,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.metrics import metrics_json
-from deepcurrents.experiments.config import trainer_overrides, validate_config
+from deepcurrents.experiments.config import trainer_overrides, validate_config, warn_unread_schedule_settings
 from deepcurrents.experiments.loggers import LogRunConfig, build_logger, finished_loggers, run_config
 from deepcurrents.experiments.run_dir import (
     RunLock,
@@ -256,6 +256,8 @@ def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None 
 def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
                member: str | None = None) -> dict[str, Any] | None:
     validate_config(cfg)
+    if is_global_rank_zero():
+        warn_unread_schedule_settings(cfg, inherited_overrides())
     keep_freed_memory()
     L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
     datamodule, module = build(cfg)

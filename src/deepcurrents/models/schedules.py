@@ -17,6 +17,8 @@ import torch
 from deepcurrents.errors import ConfigError
 
 SCHEDULES = ("step", "cosine")
+# the model.optim settings each schedule reads, and those it leaves unread
+SCHEDULE_KEYS = {"step": ("step_size", "gamma"), "cosine": ("warmup", "min_factor")}
 
 
 def budget_progress(step: int, max_steps: int | None, elapsed: float, max_seconds: float | None) -> float:
