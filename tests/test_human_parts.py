@@ -347,3 +347,58 @@ def test_snapping_never_pinches_a_saddle():
     part = cut.apply(verts)
     assert trimesh.Trimesh(part, cut.faces, process=False).area > 1.95  # both unit quadrants {x·y > 0}
     assert np.abs(part).sum(1).min() == 0.0  # the centre is still a vertex of the part
+
+
+def test_make_dataset_removes_the_numbered_parts_of_an_earlier_larger_generation(tmp_path, caplog):
+    """Training picks data.index by rank among the folder's .ply files: a second, smaller generation into the same
+    --out left 002.ply of the first behind, to pass for a part of the new one. The categories it rewrites keep only
+    the new parts (and a log line says what went), every other file stays, and a category not rewritten is left."""
+    import logging
+
+    write_faust_fixture(tmp_path / "faust")
+    out = tmp_path / "out"
+    main(["--source", "faust", "--faust-root", str(tmp_path / "faust"), "--out", str(out),
+          "--categories", "hands", "feet"])
+    hands = out / "faust" / "hands"
+    for name in ("scan.ply", "notes.txt"):
+        (hands / name).write_text("the user's own")
+    (tmp_path / "faust" / "meshes" / "train" / "faust" / "tr_reg_002.ply").unlink()  # two bodies now
+    with caplog.at_level(logging.INFO, logger="deepcurrents.make_dataset"):
+        main(["--source", "faust", "--faust-root", str(tmp_path / "faust"), "--out", str(out),
+              "--categories", "hands"])
+    assert sorted(p.name for p in hands.iterdir()) == ["000.ply", "001.ply", "meta.json", "notes.txt", "scan.ply"]
+    assert [r.getMessage() for r in caplog.records if "earlier, larger generation" in r.getMessage()] == \
+        [f"{hands}: removed 1 part file(s) of an earlier, larger generation (002.ply)"]
+    assert sorted(p.name for p in (out / "faust" / "feet").glob("*.ply")) == ["000.ply", "001.ply", "002.ply"]
+    # only names write_parts gives (three digits at least, no padding beyond) are numbered parts
+    from deepcurrents.cli.make_dataset import remove_stale_parts
+
+    for name in ("0005.ply", "7.ply", "1000.ply", "004.ply"):
+        (hands / name).write_text("")
+    assert [p.name for p in remove_stale_parts(hands, 2)] == ["004.ply", "1000.ply"]
+    assert (hands / "0005.ply").exists() and (hands / "7.ply").exists() and (hands / "001.ply").exists()
+
+
+def test_make_dataset_refuses_an_empty_category_list(tmp_path, capsys):
+    """`--categories` with no names wrote nothing and exited 0; it is one sentence naming the categories and
+    status 2, as argparse's own refusals, before any folder is made."""
+    write_faust_fixture(tmp_path)
+    with pytest.raises(SystemExit) as err:
+        main(["--source", "faust", "--faust-root", str(tmp_path), "--out", str(tmp_path / "out"), "--categories"])
+    message = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.value.code == 2
+    assert message.endswith(f"error: --categories needs at least one of {', '.join(CATEGORIES)}.")
+    assert not (tmp_path / "out").exists()
+
+
+def test_an_unknown_category_names_the_categories(tmp_path):
+    """data.category=hand (misspelt) said to run `make data`, which never builds 'hand': it names the categories.
+    A known category that is not built yet still says how to build it, and a folder of the user's own is used."""
+    with pytest.raises(DatasetError, match=r"^data\.category='hand' is not a dataset category; choose one of "
+                                           r"heads, hands, forearms, arms, torsos, feet\.$"):
+        dataset_path(tmp_path, "anny", "hand", 0)
+    with pytest.raises(DatasetError, match="make data"):
+        dataset_path(tmp_path, "anny", "hands", 0)
+    (tmp_path / "anny" / "hand").mkdir(parents=True)
+    (tmp_path / "anny" / "hand" / "000.ply").write_text("")
+    assert dataset_path(tmp_path, "anny", "hand", 0) == tmp_path / "anny" / "hand" / "000.ply"

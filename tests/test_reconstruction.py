@@ -518,3 +518,185 @@ def test_a_target_only_moved_into_the_box_still_reports_input_units(tmp_path):
     metrics = train(cfg, out_dir=tmp_path / "run")
     assert metrics["ucd"] is not None and metrics["ucd_input_units"] == metrics["ucd"]
     assert metrics["mesh_area_input_units"] == metrics["mesh_area"]
+
+
+def _write_ply_cloud(path: Path, columns: dict[str, np.ndarray], ascii: bool) -> Path:
+    """A point cloud .ply written by hand: one float vertex property per entry of ``columns``, in ASCII or in
+    little-endian binary."""
+    names = list(columns)
+    data = np.stack([np.asarray(columns[k], np.float32) for k in names], 1)
+    header = (f"ply\nformat {'ascii' if ascii else 'binary_little_endian'} 1.0\nelement vertex {len(data)}\n"
+              + "".join(f"property float {k}\n" for k in names) + "end_header\n")
+    if ascii:
+        path.write_text(header + "".join(" ".join(f"{v:.9g}" for v in row) + "\n" for row in data))
+    else:
+        path.write_bytes(header.encode() + data.astype("<f4").tobytes())
+    return path
+
+
+def test_ascii_and_binary_ply_clouds_read_the_same(tmp_path):
+    """trimesh keeps an ASCII .ply's vertices as a dict of arrays and a binary one's as a structured array: both
+    read as the points and unit normals written (float32), and both without normals stop at the "no normals"
+    sentence (the ASCII one was "could not be read ('dict' object has no attribute 'dtype')")."""
+    from deepcurrents.data.recon import TargetError, read_oriented_points
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-0.5, 0.5, (40, 3))
+    nrm = rng.normal(size=(40, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    xyz = {"x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2]}
+    oriented = {**xyz, "nx": nrm[:, 0], "ny": nrm[:, 1], "nz": nrm[:, 2]}
+    for ascii in (True, False):
+        kind = "ascii" if ascii else "binary"
+        got_pts, got_nrm = read_oriented_points(_write_ply_cloud(tmp_path / f"{kind}.ply", oriented, ascii))
+        np.testing.assert_allclose(got_pts, pts, atol=1e-7)
+        np.testing.assert_allclose(got_nrm, nrm, atol=1e-6)
+        path = _write_ply_cloud(tmp_path / f"{kind}_bare.ply", xyz, ascii)
+        with pytest.raises(TargetError, match=r"_bare\.ply' has no normals \(vertex properties nx, ny, nz\)"):
+            read_oriented_points(path)
+
+
+def _dome_and_rim(folder: Path, rim_radius: float) -> tuple[str, str]:
+    """A hemisphere cloud of radius 0.4 with outward normals (dome.xyz) and a circle of ``rim_radius`` about +z at
+    z = 0 (rim.txt): the dome's own rim when the radius is 0.4, a curve off the cloud otherwise."""
+    rng = np.random.default_rng(0)
+    dome = rng.normal(size=(2000, 3))
+    dome[:, 2] = np.abs(dome[:, 2])
+    dome /= np.linalg.norm(dome, axis=1, keepdims=True)
+    np.savetxt(folder / "dome.xyz", np.concatenate([0.4 * dome, dome], 1))
+    np.savetxt(folder / "rim.txt", circle(rim_radius, n=32))
+    return str(folder / "dome.xyz"), str(folder / "rim.txt")
+
+
+def test_curve_tolerance_must_be_positive_before_any_file_is_read(tmp_path):
+    """data.curve_tolerance=-1 (or 0) made every curve "not near the points (allowed -1 …)"; it is a ConfigError
+    naming the setting, raised before the cloud (here a missing file) is read. The dome's own rim still passes."""
+    from deepcurrents.errors import ConfigError
+
+    for bad in (-1, 0, "wide"):
+        with pytest.raises(ConfigError, match=rf"^data\.curve_tolerance={bad} must be positive\.$"):
+            ReconstructionDataModule(points=str(tmp_path / "missing.xyz"), curve=str(tmp_path / "missing.txt"),
+                                     curve_tolerance=bad)
+    cloud, rim = _dome_and_rim(tmp_path, 0.4)
+    assert len(ReconstructionDataModule(points=cloud, curve=rim, curve_tolerance=0.05).loops) == 1
+
+
+def test_a_curve_off_a_normalised_cloud_is_said_to_be_off_the_cloud(tmp_path):
+    """A rim of radius 0.8 around a dome of radius 0.4: once the cloud is centred and scaled (normalize true, or auto
+    with a rim beyond the domain) the rim reaches |coordinate| = 1, and the user hears that it does not lie near the
+    points, not to turn on the normalisation already on. With normalize=false the domain sentence stays."""
+    cloud, rim = _dome_and_rim(tmp_path, 0.8)
+    with pytest.raises(UserInputError) as err:
+        ReconstructionDataModule(points=cloud, curve=rim, normalize=True)
+    assert "does not lie near the points" in str(err.value) and "outside the domain" not in str(err.value)
+    cloud, rim = _dome_and_rim(tmp_path, 1.2)
+    with pytest.raises(UserInputError) as err:
+        ReconstructionDataModule(points=cloud, curve=rim, normalize="auto")
+    assert "does not lie near the points" in str(err.value)
+    with pytest.raises(UserInputError, match=r"outside the domain \[-1, 1\]\^3 \(max \|coordinate\| = 1\.2\)"):
+        ReconstructionDataModule(points=cloud, curve=rim, normalize=False)
+
+
+def _tiny_baseline(parts_root, *extra: str) -> list[str]:
+    """A closest-point baseline on the tiny hands cap that trains a step in milliseconds."""
+    return ["experiment=recon_baseline", f"data.root={parts_root}", *TINY, "data.num_samples=64",
+            "data.num_surface_samples=64", "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=1",
+            *extra]
+
+
+@pytest.mark.parametrize("sigma", [0.01, 0.04])
+def test_the_baselines_near_points_follow_data_near_sigma_and_the_sample_counts(parts_root, sigma):
+    """model.near_fraction / model.near_sigma were never read: the baseline's training points are the data's,
+    data.num_samples uniform then data.num_surface_samples near the target, noise data.near_sigma. A surface sample
+    moved by N(0, σ²I) lies about |σ z| (z ~ N(0, 1), mean σ√(2/π) ≈ 0.8σ) from a smooth surface."""
+    from hydra.utils import instantiate
+
+    cfg = compose_cfg(["experiment=recon_baseline", f"data.root={parts_root}", "data.num_workers=0",
+                       "data.num_samples=200", "data.num_surface_samples=400", f"data.near_sigma={sigma}"])
+    dm = instantiate(cfg.data)
+    batch = next(iter(dm.train_dataloader()))
+    x = batch["x"].double().numpy()
+    assert x.shape == (600, 3) and np.abs(x).max() <= 1.0
+    mesh = trimesh.Trimesh(dm.target["vertices"], dm.target["faces"], process=False)
+    dist = point_mesh_distance(x[200:], mesh)
+    assert 0.6 * sigma < dist.mean() < 1.2 * sigma
+    assert np.median(point_mesh_distance(x[:200], mesh)) > 5 * sigma  # the uniform ones fill [-1, 1]^3
+    # the experiment sets it where it can be seen and overridden; the model has no such settings any more
+    assert compose_cfg(["experiment=recon_baseline"]).data.near_sigma == 0.05
+    assert "near_fraction" not in cfg.model and "near_sigma" not in cfg.model
+
+
+def test_a_retired_baseline_setting_is_refused_but_an_old_checkpoint_carrying_it_loads(tmp_path, parts_root):
+    """An earlier version saved near_fraction / near_sigma as hyperparameters (passed back to __init__ on load):
+    such a checkpoint still loads, and its ucd_reverse no longer follows them (near_sigma=0.3 gave 0.25 instead of
+    0.03 with the same weights). Given for a training run (+model.near_fraction=...), they are refused in one
+    sentence naming the setting and the data's setting that does the job, before any step."""
+    from hydra.errors import ConfigCompositionException
+
+    from deepcurrents.errors import ConfigError
+    from deepcurrents.models.loading import load_module
+
+    metrics = train(compose_cfg(_tiny_baseline(parts_root, "trainer.max_steps=2")), out_dir=tmp_path / "run")
+    ckpt = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
+    ckpt["hyper_parameters"].update(near_fraction=0.0, near_sigma=0.3)
+    torch.save(ckpt, tmp_path / "old.ckpt")
+    module = load_module(tmp_path / "old.ckpt")
+    assert "near_fraction" not in module.hparams and "near_sigma" not in module.hparams
+    assert all(torch.equal(module.state_dict()[k], v) for k, v in ckpt["state_dict"].items())
+    again = module.final_evaluation(tmp_path / "again")
+    assert again["ucd_reverse"] == metrics["ucd_reverse"] and again["ucd"] == metrics["ucd"]
+    # ucd_reverse is the mean distance of the written predicted points to the target (in the file's units here)
+    points = np.asarray(trimesh.load(tmp_path / "run" / "points.ply").vertices)
+    target = trimesh.load(parts_root / "anny" / "hands" / "000.ply", process=False)
+    assert metrics["ucd_reverse_input_units"] == pytest.approx(float(point_mesh_distance(points, target).mean()),
+                                                               rel=1e-5)
+    for key, value, names in (("near_fraction", 0.3, "data.num_surface_samples"), ("near_sigma", 0.1,
+                                                                                    "data.near_sigma")):
+        with pytest.raises(ConfigError) as err:
+            train(compose_cfg(_tiny_baseline(parts_root, "trainer.max_steps=2", f"+model.{key}={value}")),
+                  out_dir=tmp_path / key)
+        text = str(err.value)
+        assert text.startswith(f"model.{key} ") and names in text and "\n" not in text
+        assert not (tmp_path / key / "checkpoints" / "last.ckpt").exists()
+        with pytest.raises(ConfigCompositionException):  # without '+', Hydra's own refusal: not in the config
+            compose_cfg(_tiny_baseline(parts_root, f"model.{key}={value}"))
+
+
+def test_a_baseline_resumed_with_its_budget_used_trains_no_step(tmp_path, parts_root):
+    """Resuming a finished table1 (ckpt_path=auto) trained each baseline one more step past its used budget and
+    changed its numbers; as our model resumed at its max_steps, it now trains nothing: the same steps, weights,
+    clock and UCD. A larger budget still continues from the checkpoint."""
+    budget = _tiny_baseline(parts_root, "model.time_budget_s=0.5")
+    first = train(compose_cfg(budget), out_dir=tmp_path / "run")
+    last = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    assert first["steps"] > 1 and first["train_seconds"] >= 0.5
+    resumed = train(compose_cfg([*budget, f"ckpt_path={last}"]), out_dir=tmp_path / "resumed")
+    assert resumed["steps"] == first["steps"]
+    assert resumed["train_seconds"] == first["train_seconds"]  # the clock did not run for the empty fit loop
+    assert resumed["ucd"] == first["ucd"] and resumed["ucd_reverse"] == first["ucd_reverse"]
+    a = torch.load(last, weights_only=True)
+    b = torch.load(tmp_path / "resumed" / "checkpoints" / "last.ckpt", weights_only=True)
+    assert b["global_step"] == a["global_step"] == first["steps"]
+    assert a["state_dict"].keys() == b["state_dict"].keys()
+    assert all(torch.equal(a["state_dict"][k], b["state_dict"][k]) for k in a["state_dict"])
+    more = train(compose_cfg([*_tiny_baseline(parts_root, "model.time_budget_s=1.0"), f"ckpt_path={last}"]),
+                 out_dir=tmp_path / "more")
+    assert more["steps"] > first["steps"] and more["train_seconds"] >= 1.0
+
+
+def test_a_baseline_without_a_budget_warns_of_the_steps_it_will_run(tmp_path, parts_root, caplog):
+    """No model.wall_time_from nor model.time_budget_s: it runs trainer.max_steps, 1e6 under both presets (three days
+    on a CPU), so it says so at the start in one sentence; given a budget, no such warning."""
+    assert compose_cfg(["experiment=recon_baseline", "preset=cpu"]).trainer.max_steps == 1000000
+    assert compose_cfg(["experiment=recon_baseline", "preset=paper"]).trainer.max_steps == 1000000
+    with caplog.at_level(logging.WARNING, logger="deepcurrents.baselines.closest_point"):
+        metrics = train(compose_cfg(_tiny_baseline(parts_root, "trainer.max_steps=2")), out_dir=tmp_path / "run")
+    assert metrics["steps"] == 2
+    said = [r.getMessage() for r in caplog.records if r.name == "deepcurrents.baselines.closest_point"]
+    assert len(said) == 1 and "\n" not in said[0]
+    assert all(k in said[0] for k in ("model.wall_time_from", "model.time_budget_s", "trainer.max_steps=2 steps"))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="deepcurrents.baselines.closest_point"):
+        train(compose_cfg(_tiny_baseline(parts_root, "trainer.max_steps=2", "model.time_budget_s=60")),
+              out_dir=tmp_path / "budget")
+    assert not [r for r in caplog.records if r.name == "deepcurrents.baselines.closest_point"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -35,6 +36,18 @@ def check_out_dir(out: str) -> None:
                            "writable folder.")
 
 
+def remove_stale_parts(folder: Path, count: int) -> list[Path]:
+    """Deletes the part files ``NNN.ply`` numbered ``count`` or more in ``folder``, left by an earlier, larger
+    generation: training picks a part by its rank among the folder's files, so a stale one would pass for a part of
+    this dataset. Only names ``write_parts`` writes are touched. → the files removed."""
+    numbered = {int(p.stem): p for p in folder.glob("*.ply")
+                if re.fullmatch(r"[0-9]+", p.stem) and p.name == f"{int(p.stem):03d}.ply" and p.is_file()}
+    stale = [numbered[i] for i in sorted(numbered) if i >= count]
+    for path in stale:
+        path.unlink()
+    return stale
+
+
 def build(args: argparse.Namespace) -> None:
     """Generates or reads the bodies, cuts their parts and writes them (a DatasetError for any bad input)."""
     check_out_dir(args.out)  # before minutes of generating
@@ -48,6 +61,12 @@ def build(args: argparse.Namespace) -> None:
         meta = {"generator": "faust", "root": str(args.faust_root), "border": args.border}
     try:
         files = write_parts(parts, Path(args.out).expanduser(), args.source, meta)
+        for name, (p, _, _) in parts.items():
+            folder = Path(args.out).expanduser() / args.source / name
+            stale = remove_stale_parts(folder, len(p))
+            if stale:
+                names = stale[0].name if len(stale) == 1 else f"{stale[0].name} to {stale[-1].name}"
+                log.info("%s: removed %d part file(s) of an earlier, larger generation (%s)", folder, len(stale), names)
     except OSError as err:
         raise DatasetError(f"--out='{args.out}': writing the parts failed ({err.strerror or type(err).__name__}"
                            f"{': ' + str(err.filename) if err.filename else ''}).") from None
@@ -68,6 +87,8 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="smooth: cut along a level set of the skinning weights (FAUST: of the smoothed labels), "
                         "inside triangles; faces: along mesh edges, each face to its dominant bone (the former cut)")
     args = parser.parse_args(argv)
+    if not args.categories:  # `--categories` with no names: nothing would be written
+        parser.error(f"--categories needs at least one of {', '.join(CATEGORIES)}.")
     if args.source == "anny" and args.num < 1:
         parser.error(f"--num={args.num} must be at least 1 (the number of bodies to generate).")
     logging.basicConfig(level=logging.INFO, format="%(message)s")

@@ -442,9 +442,13 @@ def anny_parts(num: int = 100, seed: int = 0, categories: Sequence[str] = CATEGO
 # ---------------------------------------------------------------------------------------------- dataset files
 
 def dataset_path(root: str | Path, source: str, category: str, index: int) -> Path:
-    """``root/source/category/NNN.ply``; DatasetError (saying how to build it) when it is not there."""
-    folder = Path(root) / source / category
+    """``root/source/category/NNN.ply``; DatasetError (saying how to build it) when it is not there, or naming the
+    categories when ``category`` is none of them and no folder of that name exists."""
+    folder = Path(root) / source / str(category)
     if not folder.is_dir():
+        if category not in CATEGORIES:  # a misspelling: no `make data` would ever build that folder
+            raise DatasetError(f"data.category={category!r} is not a dataset category; choose one of "
+                               f"{', '.join(CATEGORIES)}.")
         hint = "run `make data`" if source == "anny" else \
             f"run `python -m deepcurrents.cli.make_dataset --source {source} ...`"
         raise DatasetError(f"Dataset directory '{folder}' does not exist; {hint} to build it.")

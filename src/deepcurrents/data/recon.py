@@ -88,7 +88,8 @@ def read_oriented_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         if suffix == ".ply":
             cloud = trimesh.load(path, process=False)
             raw = cloud.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
-            names = raw.dtype.names if raw is not None else ()
+            # trimesh keeps a binary file's vertices as a structured array, an ASCII file's as a dict of arrays
+            names = () if raw is None else tuple(raw) if isinstance(raw, dict) else raw.dtype.names or ()
             if not all(k in names for k in ("nx", "ny", "nz")):
                 raise TargetError(f"Point cloud '{path}' has no normals (vertex properties nx, ny, nz); "
                                   "DeepCurrents needs oriented points.")
@@ -268,6 +269,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         for key, value in (("num_samples", num_samples), ("num_surface_samples", num_surface_samples)):
             positive_int(f"data.{key}", value)
         number_at_least("data.boundary_sigma", boundary_sigma, strict=True)
+        curve_tolerance = number_at_least("data.curve_tolerance", curve_tolerance, strict=True)
         positive_int("data.num_workers", num_workers, minimum=0)
         if batch_kind not in ("current", "closest_point"):
             raise ConfigError(f"data.batch_kind='{batch_kind}' must be 'current' or 'closest_point'.")
@@ -310,9 +312,14 @@ class ReconstructionDataModule(L.LightningDataModule):
             pts, nrm = read_oriented_points(points)
             self.scale, self.offset = normalisation(pts, normalize)
             pts = (pts - self.offset) / self.scale
-            raw = load_boundary(curve, domain=np.inf).loops
-            loops = validate_loops([(lp - self.offset) / self.scale for lp in raw], f"'{curve}'")
-            self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
+            loops = [(lp - self.offset) / self.scale for lp in load_boundary(curve, domain=np.inf).loops]
+            # with the cloud centred and scaled, a curve outside the domain is a curve off the cloud: say that first
+            # (the domain sentence would ask for the normalisation already on); without it, the domain comes first
+            if normalize is not False:
+                self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
+            loops = validate_loops(loops, f"'{curve}'")
+            if normalize is False:
+                self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
             loops = self._orient_curve_with_normals(loops, pts, nrm, curve, points)
             self.target = {"kind": "points", "points": pts, "normals": nrm}
         self.boundary = Boundary(loops, name)
