@@ -5,11 +5,13 @@ room for checkpoints) and locked against a second run."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -29,6 +31,7 @@ from conftest import (
 from deepcurrents.errors import UserInputError
 from deepcurrents.experiments import run_dir
 from deepcurrents.experiments.runner import train
+from deepcurrents.models.checkpointing import atomic_torch_save
 
 STEPS = 300  # long enough that a signal sent at the first checkpoint arrives well before the end
 RUN = ["experiment=minimal_trefoil", *QUIET_CPU, *TINY_NET, *TINY_EVAL, "data.num_samples=512",
@@ -358,6 +361,54 @@ def test_a_run_directory_that_is_a_file_is_one_sentence_from_the_command_line(tm
     assert proc.stderr.strip() == (f"error: hydra.run.dir={run_dir} cannot be made: '{blocker}' is a file, not a "
                                    "folder; choose another run directory.")
     assert blocker.read_text() == "the user's file"
+
+
+def _refuse_new_files_in(monkeypatch, folder):
+    """mkstemp refusing ``folder`` as a read-only folder does (root passes permission bits, so tests cannot chmod)."""
+    real = tempfile.mkstemp
+
+    def mkstemp(*args, dir=None, **kwargs):
+        if dir is not None and Path(dir) == folder:
+            raise PermissionError(errno.EACCES, "Permission denied")
+        return real(*args, dir=dir, **kwargs)
+
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+
+
+def test_a_read_only_run_directory_is_one_sentence_before_hydra_and_before_training(tmp_path, monkeypatch):
+    """A read-only run directory was Hydra's PermissionError traceback (it makes the folder and train.log before our
+    code runs), and a read-only checkpoints/ inside a writable one was found after the whole run had trained, with
+    the advice to free some space."""
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    _refuse_new_files_in(monkeypatch, run)
+    proc = run_command_in_process(TRAIN_COMMAND, [*TINY, f"hydra.run.dir={run}"], cwd=ROOT)
+    assert proc.returncode == 2 and proc.stderr.strip() == (
+        f"error: hydra.run.dir={run} cannot be written: '{run}' does not take new files (Permission denied); make "
+        "it writable or choose another run directory.")
+    monkeypatch.undo()
+    _refuse_new_files_in(monkeypatch, run / "checkpoints")
+    with pytest.raises(UserInputError, match=r"^The output directory '.*checkpoints' cannot be written \(Permission "
+                                             r"denied\); make it writable"):
+        train(compose_cfg(TINY), out_dir=run)
+    assert not list((run / "checkpoints").iterdir())
+    with pytest.raises(UserInputError, match=r"could not be written \(Permission denied\); make it writable or"):
+        atomic_torch_save({"x": 1}, run / "checkpoints" / "last.ckpt")
+
+
+def test_a_disk_that_fills_up_under_the_csv_logger_is_one_sentence(tmp_path, monkeypatch):
+    """With logger=csv a full disk during training was Lightning's OSError traceback (the checkpoint's own write
+    already said it in one sentence)."""
+    from lightning.fabric.loggers import csv_logs
+
+    def full(self):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "run" / "csv" / "metrics.csv"))
+
+    monkeypatch.setattr(csv_logs._ExperimentWriter, "save", full)
+    with pytest.raises(UserInputError, match=r"^Writing the run's files failed at step \d+ \(No space left on device: "
+                                             r".*metrics\.csv\); free some space, then continue with ckpt_path=auto"):
+        train(compose_cfg([*TINY, "logger=csv", "trainer.max_steps=3", "trainer.log_every_n_steps=1"]),
+              out_dir=tmp_path / "run")
 
 
 def test_unwritable_or_full_output_directory_stops_before_training(tmp_path, monkeypatch):

@@ -16,6 +16,7 @@ from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
 from deepcurrents.experiments.config import CONFIG_DIR
 from deepcurrents.experiments.multirun import FAILED_JOB_FILE
+from deepcurrents.experiments.run_dir import writable_problem
 from deepcurrents.experiments.runner import train
 
 
@@ -88,13 +89,18 @@ def command_line_dirs(argv: list[str]) -> dict[str, Path]:
 
 
 def run_dir_problem(argv: list[str]) -> str | None:
-    """One sentence if the command line's ``hydra.run.dir=`` or ``hydra.sweep.dir=`` names a file, or a folder under
-    a file: Hydra makes that folder before any of our code runs, and failed there with a FileExistsError traceback."""
+    """One sentence if the command line's ``hydra.run.dir=`` or ``hydra.sweep.dir=`` names a file, a folder under a
+    file, or a folder (or the nearest existing folder above it) that cannot be written: Hydra makes that folder and
+    its log file before any of our code runs, and failed there with a FileExistsError or PermissionError traceback."""
     for key, path in command_line_dirs(argv).items():
         blocker = next((p for p in (path, *path.parents) if p.exists()), None)
         if blocker is not None and not blocker.is_dir():
             return (f"{key}={path} cannot be made: '{blocker}' is a file, not a folder; choose another run "
                     "directory.")
+        problem = writable_problem(blocker) if blocker is not None else None
+        if problem is not None:
+            return (f"{key}={path} cannot be written: '{blocker}' does not take new files ({problem}); make it "
+                    "writable or choose another run directory.")
     return None
 
 

@@ -37,18 +37,33 @@ def is_global_rank_zero() -> bool:
     return True
 
 
-def make_run_dir(out_dir: Path) -> Path:
-    """Creates ``out_dir`` and checks that files can be written there, or one sentence saying why not."""
+def writable_problem(folder: Path) -> str | None:
+    """Why files cannot be written in ``folder`` (an existing folder), or None: a file is made and removed there,
+    since permission bits do not tell (root passes them; an immutable folder or a read-only mount does not)."""
     try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=out_dir)
+        fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=folder)
         os.close(fd)
         os.unlink(probe)
     except OSError as err:
-        raise UserInputError(
-            f"The output directory '{out_dir}' cannot be written ({err.strerror or type(err).__name__}); "
-            "choose another with hydra.run.dir=… (or paths.output_dir=…)."
-        ) from None
+        return err.strerror or type(err).__name__
+    return None
+
+
+def make_run_dir(out_dir: Path) -> Path:
+    """Creates ``out_dir`` and checks that files can be written there and in its ``checkpoints/`` (if it exists
+    already: a resumed or reused run directory), or one sentence saying why not."""
+    problem, where = None, out_dir
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        problem = err.strerror or type(err).__name__
+    for where in (out_dir, out_dir / "checkpoints"):
+        problem = problem or (writable_problem(where) if where.is_dir() else None)
+        if problem is not None:
+            break
+    if problem is not None:
+        raise UserInputError(f"The output directory '{where}' cannot be written ({problem}); make it writable or "
+                             "choose another with hydra.run.dir=… (or paths.output_dir=…).")
     return out_dir
 
 

@@ -18,6 +18,7 @@ The command ``python train.py …`` (``deepcurrents.cli.train``) is a thin wrapp
 from __future__ import annotations
 
 import ctypes
+import errno
 import inspect
 import json
 import logging
@@ -294,6 +295,13 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
         except MisconfigurationException as err:  # a trainer setting Lightning checks only once fitting runs
             text = " ".join(str(err).split()).rstrip(".")
             raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
+        except OSError as err:  # a logger's file (the CSV logger's metrics) on a disk that filled up during training
+            if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+                raise
+            where = f": {err.filename}" if err.filename else ""
+            raise UserInputError(f"Writing the run's files failed at step {trainer.global_step} ({err.strerror}{where}"
+                                 f"); free some space, then continue with ckpt_path=auto hydra.run.dir={out_dir} (the "
+                                 "last checkpoint is kept).") from None
         except SIGTERMException:
             name = preemption.signal_name
             if trainer.is_global_zero:

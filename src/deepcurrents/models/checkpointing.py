@@ -12,6 +12,7 @@ from the file), and carrying what an exact resume needs beyond Lightning's own s
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import random
@@ -94,8 +95,9 @@ def atomic_torch_save(obj: Any, path: str | Path) -> None:
             os.unlink(tmp)
         if isinstance(err, OSError):  # a full disk or a vanished directory in the middle of a run
             kept = " (the previous one is kept)" if path.exists() else ""
+            advice = "free some space" if err.errno in (errno.ENOSPC, errno.EDQUOT) else "make it writable"
             raise UserInputError(f"The checkpoint {path} could not be written ({err.strerror or type(err).__name__})"
-                                 f"{kept}; free some space or choose another hydra.run.dir.") from None
+                                 f"{kept}; {advice} or choose another hydra.run.dir.") from None
         raise
 
 
