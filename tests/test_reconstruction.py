@@ -577,6 +577,9 @@ def test_curve_tolerance_must_be_positive_before_any_file_is_read(tmp_path):
         with pytest.raises(ConfigError, match=rf"^data\.curve_tolerance={bad} must be positive\.$"):
             ReconstructionDataModule(points=str(tmp_path / "missing.xyz"), curve=str(tmp_path / "missing.txt"),
                                      curve_tolerance=bad)
+        with pytest.raises(ConfigError, match=rf"^data\.near_sigma={bad} must be positive\.$"):  # the baseline's
+            ReconstructionDataModule(points=str(tmp_path / "missing.xyz"), curve=str(tmp_path / "missing.txt"),
+                                     near_sigma=bad)
     cloud, rim = _dome_and_rim(tmp_path, 0.4)
     assert len(ReconstructionDataModule(points=cloud, curve=rim, curve_tolerance=0.05).loops) == 1
 

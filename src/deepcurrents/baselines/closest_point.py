@@ -15,13 +15,23 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepcurrents.errors import ConfigError
+from deepcurrents.errors import ConfigError, number_at_least
 from deepcurrents.eval.metrics import sample_surface
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.models.reconstruction import TargetGeometry
 from deepcurrents.nn import FieldMLP, FourierFeatures
 
 log = logging.getLogger(__name__)
+
+# σ of the Gaussian noise around target samples whose images g(x) ``ucd_reverse`` measures. A fixed part of the
+# evaluation, so that runs compare whatever they trained with; 0.05 is the value every earlier run's
+# model.near_sigma had (it was read here and nowhere else), so their ucd_reverse is unchanged.
+REVERSE_NEAR_SIGMA = 0.05
+
+# Settings of earlier versions that no training read (the near/uniform split is data.num_samples /
+# data.num_surface_samples, the noise data.near_sigma); their checkpoints still carry them as hyperparameters.
+RETIRED = {"near_fraction": "data.num_surface_samples (points near the target) beside data.num_samples (uniform)",
+           "near_sigma": "data.near_sigma (the noise of the points near the target)"}
 
 
 def read_wall_time(path: str | Path) -> float:
@@ -37,20 +47,26 @@ def read_wall_time(path: str | Path) -> float:
 class ClosestPointModule(DeepCurrentsModule):
     """x ↦ g(x) = x + h(x), h the Fourier-feature MLP with 3 outputs; loss E|g(x) − proj_Σ(x)|².
 
-    Batches: ``ReconstructionDataModule(batch_kind="closest_point")`` → {"x", "closest"}.
+    Batches: ``ReconstructionDataModule(batch_kind="closest_point")`` → {"x", "closest"}: ``data.num_samples``
+    uniform points and ``data.num_surface_samples`` near Σ (noise σ = ``data.near_sigma``); the data owns them.
     Stops when the training time reaches ``time_budget_s`` (or the ``train_seconds`` read from
     ``wall_time_from`` when training starts) or at ``trainer.max_steps``, whichever comes first: the
-    recon_baseline experiment caps steps at 1e6 under every preset, so that its budget is the stop.
+    recon_baseline experiment caps steps at 1e6 under every preset, so that its budget is the stop. A run
+    resumed with its budget used trains no step; one without a budget says so (a warning) when it starts.
     """
 
     def __init__(self, net: dict, optim: dict, rff: dict | None = None, evaluation: dict | None = None,
-                 target: dict | None = None, boundary: dict | None = None, near_fraction: float = 0.5,
-                 near_sigma: float = 0.05,
-                 time_budget_s: float | None = None, wall_time_from: str | None = None):
+                 target: dict | None = None, boundary: dict | None = None,
+                 time_budget_s: float | None = None, wall_time_from: str | None = None,
+                 near_fraction: float | None = None, near_sigma: float | None = None):
         super().__init__(optim)
-        self.save_hyperparameters(ignore=["target"])
-        if time_budget_s is not None and not float(time_budget_s) > 0:
-            raise ConfigError(f"model.time_budget_s={time_budget_s} must be positive.")
+        # near_fraction, near_sigma: RETIRED, accepted so that earlier checkpoints (whose hyperparameters are
+        # passed back here) still load; not saved, and refused in training (setup)
+        self.save_hyperparameters(ignore=["target", "near_fraction", "near_sigma"])
+        self._retired = {k: v for k, v in (("near_fraction", near_fraction), ("near_sigma", near_sigma))
+                         if v is not None}
+        if time_budget_s is not None:
+            number_at_least("model.time_budget_s", time_budget_s, strict=True)
         net = network_kwargs(net, rff)
         self.encoding = FourierFeatures(3, net["num_frequencies"], float(net["sigma"]), enabled=net["rff"],
                                         seed=net["rff_seed"])
@@ -65,12 +81,34 @@ class ClosestPointModule(DeepCurrentsModule):
         """Predicted closest points. (N, 3) → (N, 3)."""
         return x + self.mlp(self.encoding(x))
 
+    def setup(self, stage: str) -> None:
+        # a fit builds the module from the run's config (a resume too), never from a checkpoint's hyperparameters:
+        # a retired setting here was given on the command line (+model.near_fraction=...) and would do nothing
+        if stage == "fit" and self._retired:
+            key = next(iter(self._retired))
+            raise ConfigError(f"model.{key} is not a setting of the closest-point baseline any more (it was never "
+                              f"read); set {RETIRED[key]} instead.")
+
     def on_train_start(self) -> None:
         if self.wall_time_from is not None and self.time_budget_s is None:
             self.time_budget_s = read_wall_time(self.wall_time_from)
             log.info("closest-point baseline: training for %.1f s (the wall time of %s)", self.time_budget_s,
                      self.wall_time_from)
         super().on_train_start()
+        if self.time_budget_s is None:
+            steps = self.trainer.max_steps
+            limit = f"trainer.max_steps={steps} steps" if steps is not None and steps >= 0 else "trainer.max_time"
+            log.warning("The closest-point baseline has no wall-time budget (neither model.wall_time_from nor "
+                        "model.time_budget_s is set), so it trains until %s (Table 1 gives it a DeepCurrents run's "
+                        "time: model.wall_time_from=RUN/metrics.json).", limit)
+        elif self.train_seconds >= self.time_budget_s:
+            # a resumed run whose budget is used (a finished table1 resumed with ckpt_path=auto): train nothing, as
+            # a run resumed at its max_steps, and stop the clock so that train_seconds stays the checkpoint's.
+            # should_stop before the loop's first check: no batch is drawn and the lr schedule does not move.
+            log.info("closest-point baseline: its wall-time budget (%.1f s) is used (%.1f s trained); no step "
+                     "will be trained.", self.time_budget_s, self.train_seconds)
+            self._train_start = None
+            self.trainer.should_stop = True
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         loss = ((self(batch["x"]) - batch["closest"]) ** 2).sum(-1).mean()
@@ -93,7 +131,8 @@ class ClosestPointModule(DeepCurrentsModule):
     @torch.no_grad()
     def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:
         """``ucd`` = mean |y − g(y)| over uniform target samples (the paper's evaluation of this baseline);
-        ``ucd_reverse`` = mean distance to the target of predicted points g(x) for x near the target;
+        ``ucd_reverse`` = mean distance to the target of predicted points g(x) for x = y + N(0, σ²), σ =
+        ``REVERSE_NEAR_SIGMA`` (fixed: not a training setting);
         ``points.ply`` holds those predicted points."""
         import trimesh
 
@@ -111,7 +150,7 @@ class ClosestPointModule(DeepCurrentsModule):
             y = TargetGeometry.points(self)
         pred_y = self.predict_points(y)
         rng = np.random.default_rng(seed + 1)
-        near = y + rng.normal(scale=float(self.hparams.near_sigma), size=y.shape)
+        near = y + rng.normal(scale=REVERSE_NEAR_SIGMA, size=y.shape)
         pred = self.predict_points(near)
         if target is not None:
             reverse = float(point_mesh_distance(pred, target).mean())

@@ -273,7 +273,8 @@ class ReconstructionDataModule(L.LightningDataModule):
         positive_int("data.num_workers", num_workers, minimum=0)
         if batch_kind not in ("current", "closest_point"):
             raise ConfigError(f"data.batch_kind='{batch_kind}' must be 'current' or 'closest_point'.")
-        self.batch_kind, self.near_sigma = batch_kind, float(near_sigma)
+        self.batch_kind = batch_kind
+        self.near_sigma = number_at_least("data.near_sigma", near_sigma, strict=True)
         self.ambient = ambient_options(sampling)
         if normalize not in (True, False, "auto"):
             raise ConfigError(f"data.normalize={normalize!r} must be true, false or auto.")
