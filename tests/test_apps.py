@@ -410,3 +410,24 @@ def test_the_apps_helper_modules_are_not_commands_and_say_so(module):
                           cwd=ROOT, timeout=120)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.startswith(f"error: deepcurrents.cli.{module} is shared plumbing of the apps, not a command")
+
+
+@pytest.mark.parametrize("mode, sweeper, said", [
+    ("RUN", "", "Continue with ckpt_path=auto hydra.run.dir=/runs/job."),
+    ("MULTIRUN", "hydra._internal.core_plugins.basic_sweeper.BasicSweeper",
+     "Continue the sweep with the same command plus ckpt_path=auto hydra.sweep.dir=/runs/sweep (each job"),
+    ("MULTIRUN", "hydra_plugins.hydra_optuna_sweeper.optuna_sweeper.OptunaSweeper",
+     "An Optuna search does not resume its trials"),
+])
+def test_a_stopped_jobs_hint_says_how_its_kind_of_run_continues(monkeypatch, mode, sweeper, said):
+    """Ctrl-C in a multirun printed `ckpt_path=auto hydra.run.dir=<job dir>`, which under -m means nothing (the
+    probe's attempt was refused: another config) and leaves the jobs after it unrun."""
+    from hydra.types import RunMode
+
+    import deepcurrents.experiments.runner as runner
+
+    state = OmegaConf.create({"mode": mode, "sweep": {"dir": "/runs/sweep"}, "sweeper": {"_target_": sweeper}})
+    state.mode = RunMode[mode]
+    fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
+    monkeypatch.setattr(runner, "HydraConfig", fake)
+    assert runner.continue_hint(Path("/runs/job")).startswith(said)

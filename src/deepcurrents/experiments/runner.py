@@ -36,6 +36,7 @@ import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import ConfigCompositionException, InstantiationException
+from hydra.types import RunMode
 from lightning.pytorch.accelerators import CPUAccelerator
 from lightning.pytorch.callbacks.progress import ProgressBar
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
@@ -305,7 +306,7 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
         except SIGTERMException:
             name = preemption.signal_name
             if trainer.is_global_zero:
-                hint = resume_hint or f"Continue with ckpt_path=auto hydra.run.dir={out_dir}."
+                hint = resume_hint or continue_hint(out_dir)
                 log.warning("Stopped by %s at step %d; %s holds it. %s", "Ctrl-C" if name == "SIGINT" else name,
                             trainer.global_step, last, hint)
             raise SystemExit(130 if name == "SIGINT" else 143) from None
@@ -336,6 +337,20 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
                 lg.experiment.summary.update({f"final/{k}": v for k, v in metrics.items()})
             lg.finalize("success")
         return metrics
+
+
+def continue_hint(out_dir: Path) -> str:
+    """How to continue a stopped run: a single run from its directory; a multirun's job by the same command again
+    into the same sweep directory (``hydra.run.dir`` means nothing under ``-m``, and the jobs after it have not
+    run); an Optuna trial not at all (a search samples new trials)."""
+    if not (HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN):
+        return f"Continue with ckpt_path=auto hydra.run.dir={out_dir}."
+    sweep = HydraConfig.get().sweep.dir
+    if "optuna" in str(OmegaConf.select(HydraConfig.get(), "sweeper._target_", default="")).lower():
+        return ("An Optuna search does not resume its trials: run it again (hydra.sweeper.storage=sqlite:///….db "
+                "keeps the study's finished trials).")
+    return (f"Continue the sweep with the same command plus ckpt_path=auto hydra.sweep.dir={sweep} (each job from "
+            "its own checkpoint; the jobs not yet run then run).")
 
 
 def inherited_overrides() -> list[str]:
