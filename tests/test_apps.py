@@ -315,7 +315,7 @@ def test_a_sweep_job_that_fails_ends_that_job_not_the_sweep(tmp_path):
     assert (sweep / "1" / "metrics.json").is_file() and not (sweep / "0" / "metrics.json").exists()
     assert (sweep / "0" / "error.txt").read_text().strip() == "model.optim.lr=-1 must be positive."
     table = (sweep / "table.md").read_text()
-    assert "\n| 1 |" in table  # the one job that ran (named by its number: nothing differs among those that ran)
+    assert "\n| 1: model.optim.lr=" in table  # the one job that ran, named by what sets it apart from the failed one
     assert "- 0: model.optim.lr=-1: model.optim.lr=-1 must be positive." in table
     last = proc.stderr.strip().splitlines()[-1]
     assert last.startswith("error: 1 of 2 sweep jobs failed (job 0: model.optim.lr=-1 must be positive)"), last
@@ -363,6 +363,23 @@ def test_failed_jobs_end_a_grid_sweep_with_status_2_but_not_a_search(tmp_path, c
     else:
         MultirunTable().on_multirun_end(config)
     assert "- 0: " in (tmp_path / "table.md").read_text()
+
+
+def test_a_sweep_whose_jobs_all_failed_still_lists_them_where_the_table_would_be(tmp_path, capsys):
+    """Every trial failing wrote no table.md at all (the README says failed jobs are listed under the table)."""
+    from deepcurrents.experiments.multirun import MultirunTable
+
+    for num in ("0", "1"):
+        (tmp_path / num / ".hydra").mkdir(parents=True)
+        (tmp_path / num / ".hydra" / "overrides.yaml").write_text(f"- model.optim.lr=-{num}\n- preset=cpu\n")
+        (tmp_path / num / "error.txt").write_text(f"model.optim.lr=-{num} must be positive.")
+    config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}, "sweeper": {"_target_": "optuna"}}})
+    with pytest.raises(SystemExit):
+        MultirunTable().on_multirun_end(config)
+    assert (tmp_path / "table.md").read_text() == (
+        "No job of this sweep finished.\n\nFailed jobs:\n\n- 0: model.optim.lr=-0: model.optim.lr=-0 must be "
+        "positive.\n- 1: model.optim.lr=-1: model.optim.lr=-1 must be positive.\n")
+    assert "error: 2 of 2 sweep jobs failed" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("direction, worst", [("minimize", float("inf")), ("maximize", float("-inf")),

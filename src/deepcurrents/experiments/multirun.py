@@ -72,15 +72,22 @@ def collect_jobs(sweep_dir: str | Path) -> list[dict[str, Any]]:
     return sorted(jobs, key=_job_order)
 
 
-def write_multirun_table(sweep_dir: str | Path, objective: str | None = None) -> list[dict[str, Any]]:
-    """Writes ``table.md``/``table.csv`` of a sweep's jobs (rows named by their distinct overrides, the
-    objective's column first when given). → the rows."""
+def common_overrides(jobs: list[dict[str, Any]]) -> set[str]:
+    """The overrides every one of ``jobs`` ran with (the rest tell them apart)."""
+    return set.intersection(*(set(j["overrides"]) for j in jobs)) if jobs else set()
+
+
+def write_multirun_table(sweep_dir: str | Path, objective: str | None = None,
+                         failed: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+    """Writes ``table.md``/``table.csv`` of a sweep's finished jobs (rows named by the overrides that tell them
+    apart from every job of the sweep, ``failed`` ones included, so that a row keeps its swept value when it alone
+    finished; the objective's column first when given). → the rows."""
     from deepcurrents.experiments.tables import write_table
 
     jobs = collect_jobs(sweep_dir)
     if not jobs:
         return []
-    common = set.intersection(*(set(j["overrides"]) for j in jobs))
+    common = common_overrides([*jobs, *(failed or [])])
     results = []
     for j in jobs:
         distinct = [o for o in j["overrides"] if o not in common]
@@ -101,10 +108,12 @@ class MultirunTable(Callback):
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
         sweep_dir = Path(config.hydra.sweep.dir)
-        rows = write_multirun_table(sweep_dir, config.get("objective"))
         failed = failed_jobs(sweep_dir)
-        if failed and rows:
-            common = set.intersection(*(set(j["overrides"]) for j in [*collect_jobs(sweep_dir), *failed]))
+        rows = write_multirun_table(sweep_dir, config.get("objective"), failed)
+        if failed:
+            if not rows:  # the failed jobs are still listed where the table would be
+                (sweep_dir / "table.md").write_text("No job of this sweep finished.\n")
+            common = common_overrides([*collect_jobs(sweep_dir), *failed])
             with open(sweep_dir / "table.md", "a") as fh:
                 fh.write("\nFailed jobs:\n\n")
                 for j in failed:
