@@ -161,11 +161,15 @@ def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, mo
 
     monkeypatch.setattr(current_module, "current_loss", poisoned)
     cfg = compose_cfg(["experiment=minimal_trefoil", *TINY])
-    with pytest.raises(NonFiniteLossError, match="step 4"):
+    with pytest.raises(NonFiniteLossError, match=r"step 4; training stopped, and the last good checkpoint is kept "
+                                                 r"in .*checkpoints \(try a lower model\.optim\.lr\)\.$"):
         train(cfg, out_dir=tmp_path)
     ckpt = torch.load(tmp_path / "checkpoints/last.ckpt", weights_only=False)
     assert ckpt["global_step"] == 3
     assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())
+    calls["n"] = 10  # NaN from the first step: it said a last good checkpoint was kept where none had been written
+    with pytest.raises(NonFiniteLossError, match=r"step 0; training stopped, and no checkpoint had been written yet"):
+        train(cfg, out_dir=tmp_path / "fresh")
 
 
 def test_datamodule_streams_differ_per_rank_and_resume_step():

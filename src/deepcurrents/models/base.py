@@ -143,10 +143,12 @@ class DeepCurrentsModule(L.LightningModule):
     def check_finite(self, loss: torch.Tensor | float, hint: str = "try a lower model.optim.lr") -> None:
         value = float(loss.detach()) if isinstance(loss, torch.Tensor) else float(loss)
         if not math.isfinite(value):
-            raise NonFiniteLossError(
-                f"The loss became {value} at step {self.global_step}; training stopped. "
-                f"The last good checkpoint is kept ({hint})."
-            )
+            trainer = self._trainer  # None outside a fit (the attribute, not the property, which raises then)
+            kept = [cb.dirpath for cb in (trainer.checkpoint_callbacks if trainer is not None else [])
+                    if cb.dirpath and any(Path(cb.dirpath).glob("*.ckpt"))]
+            where = f"the last good checkpoint is kept in {kept[0]}" if kept else "no checkpoint had been written yet"
+            raise NonFiniteLossError(f"The loss became {value} at step {self.global_step}; training stopped, and "
+                                     f"{where} ({hint}).")
 
     # ------------------------------------------------------------------------------- training clock
     def elapsed_train_seconds(self) -> float:
