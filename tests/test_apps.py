@@ -448,3 +448,25 @@ def test_a_stopped_jobs_hint_says_how_its_kind_of_run_continues(monkeypatch, mod
     fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
     monkeypatch.setattr(runner, "HydraConfig", fake)
     assert runner.continue_hint(Path("/runs/job")).startswith(said)
+
+
+@pytest.mark.parametrize("launcher, trainer, refused", [
+    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher", "ddp_cpu", True),
+    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher", "cpu", False),
+    ("hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher", "ddp", False),
+])
+def test_a_local_multirun_refuses_a_ddp_trainer(monkeypatch, launcher, trainer, refused):
+    """-m with trainer=ddp_cpu on the local launcher: Lightning re-ran the command line, -m included, in its second
+    process, which walked the whole sweep beside the first (a stray sweep folder, tables written twice)."""
+    import deepcurrents.cli.train as cli_train
+
+    state = OmegaConf.create({"launcher": {"_target_": launcher}})
+    fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
+    monkeypatch.setattr(cli_train, "HydraConfig", fake)
+    cfg = compose_cfg(["experiment=minimal_trefoil", f"trainer={trainer}"])
+    if refused:
+        with pytest.raises(ConfigError, match=r"^trainer\.strategy=ddp with 2 devices cannot run inside a local "
+                                              r"multirun \(-m\)"):
+            cli_train.check_local_ddp_sweep(cfg)
+    else:
+        cli_train.check_local_ddp_sweep(cfg)

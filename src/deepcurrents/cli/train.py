@@ -27,6 +27,7 @@ def run_cli(cfg: DictConfig) -> float | None:
     Returns the value an Optuna sweep minimises (``cfg.objective``), if set.
     """
     if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        exit_on_user_error(check_local_ddp_sweep, cfg)
         # a requeued job or a sweep run again into the same folder: an earlier attempt's failure is not this one's
         (Path(HydraConfig.get().runtime.output_dir) / FAILED_JOB_FILE).unlink(missing_ok=True)
         try:
@@ -39,6 +40,19 @@ def run_cli(cfg: DictConfig) -> float | None:
     if metrics is not None and objective:
         return exit_on_user_error(objective_value, metrics, str(objective))
     return None
+
+
+def check_local_ddp_sweep(cfg: DictConfig) -> None:
+    """ConfigError for a multi-process DDP trainer inside a multirun on Hydra's local launcher: Lightning starts each
+    further process with this command line, ``-m`` included, so every process walked the whole sweep beside the
+    first (a second sweep folder, tables written twice, a job's failure deciding another process's exit)."""
+    launcher = str(OmegaConf.select(HydraConfig.get(), "launcher._target_", default=""))
+    trainer = cfg.get("trainer") or {}
+    devices, nodes = trainer.get("devices", 1), trainer.get("num_nodes", 1)
+    if launcher.endswith("BasicLauncher") and "ddp" in str(trainer.get("strategy", "")) and (devices, nodes) != (1, 1):
+        raise ConfigError(f"trainer.strategy={trainer.get('strategy')} with {devices} devices cannot run inside a "
+                          "local multirun (-m): each DDP process would run the whole sweep; run its jobs one command "
+                          "at a time, or with hydra/launcher=submitit_slurm on a cluster.")
 
 
 def failed_job(err: Exception, cfg: DictConfig) -> float | None:
