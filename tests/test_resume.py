@@ -514,3 +514,15 @@ def test_resume_compares_data_files_not_how_they_were_written(tmp_path):
     assert all(_same(_files(ways[0]), _files(w)) for w in ways)
     assert not _same(_files(str(fam)), _files([meshes[0]]))
     assert _files("trefoil") == "trefoil" and _files(None) is None
+
+
+def test_the_slurm_launcher_off_a_cluster_is_one_sentence(tmp_path, monkeypatch):
+    """hydra/launcher=submitit_slurm where no srun is found ended in submitit's RuntimeError traceback."""
+    import shutil
+
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    proc = run_command_in_process(TRAIN_COMMAND, ["-m", *TINY, "hydra/launcher=submitit_slurm",
+                                                  f"hydra.sweep.dir={tmp_path / 'sweep'}"], cwd=ROOT)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().startswith("error: hydra/launcher=submitit_slurm submits to SLURM, but `srun` is not")
+    assert not (tmp_path / "sweep").exists()

@@ -3,6 +3,7 @@ run (or a suite of runs) into Hydra's run directory; user errors end in one sent
 
 from __future__ import annotations
 
+import shutil
 import sys
 from contextlib import contextmanager
 from pathlib import Path
@@ -118,6 +119,15 @@ def run_dir_problem(argv: list[str]) -> str | None:
     return None
 
 
+def launcher_problem(argv: list[str]) -> str | None:
+    """One sentence if the command line picks the SLURM launcher where SLURM's ``srun`` is not found (submitit's own
+    check ends in a RuntimeError traceback after Hydra has set the sweep up)."""
+    if "hydra/launcher=submitit_slurm" in argv and shutil.which("srun") is None:
+        return ("hydra/launcher=submitit_slurm submits to SLURM, but `srun` is not found here; run it on the cluster's "
+                "login node, or use hydra/launcher=submitit_local (or no launcher) on this machine.")
+    return None
+
+
 @contextmanager
 def record_kept_on_refusal(run_dir: Path | None):
     """Hydra rewrites a run directory's record of the command (``.hydra/``) before any of our checks run; when the
@@ -147,7 +157,7 @@ def main() -> float | None:
     given on the command line is checked (Hydra makes it first); a refused single run leaves that directory's
     previous record of its command (:func:`record_kept_on_refusal`)."""
     argv = sys.argv[1:]
-    problem = run_dir_problem(argv)
+    problem = run_dir_problem(argv) or launcher_problem(argv)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         sys.exit(2)
