@@ -382,6 +382,27 @@ def test_a_sweep_whose_jobs_all_failed_still_lists_them_where_the_table_would_be
     assert "error: 2 of 2 sweep jobs failed" in capsys.readouterr().err
 
 
+def test_a_sweep_of_suites_with_a_failed_job_says_which_jobs_ran_suites(tmp_path, capsys):
+    """A sweep of suites (their tables are in their own folders, no metrics.json at the job's level) with one failed
+    job said "No job of this sweep finished", and a failed job whose overrides all jobs shared was listed as
+    `- 1: : …`."""
+    from deepcurrents.experiments.multirun import MultirunTable
+
+    for num, name, text in (("0", "suite.json", "[]"), ("1", "error.txt", "data.index=1 is out of range.")):
+        (tmp_path / num / ".hydra").mkdir(parents=True)
+        (tmp_path / num / ".hydra" / "overrides.yaml").write_text("- experiment=hand_ablation\n- data.index=1\n")
+        (tmp_path / num / name).write_text(text)
+    (tmp_path / "table.csv").write_text("run,ucd\nstale,1\n")  # an earlier sweep's, into the same folder
+    config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}, "sweeper": {"_target_": "basic"}}})
+    with pytest.raises(SystemExit):
+        MultirunTable().on_multirun_end(config)
+    assert (tmp_path / "table.md").read_text() == (
+        "Jobs 0 ran suites (their tables are in their folders).\n\nFailed jobs:\n\n"
+        "- 1: experiment=hand_ablation data.index=1: data.index=1 is out of range.\n")
+    assert not (tmp_path / "table.csv").exists()
+    assert "error: 1 of 2 sweep jobs failed" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("direction, worst", [("minimize", float("inf")), ("maximize", float("-inf")),
                                               (["maximize"], float("-inf")), ("Direction.maximize", float("-inf")),
                                               (None, float("inf"))])
@@ -445,15 +466,21 @@ def test_a_stopped_jobs_hint_says_how_its_kind_of_run_continues(monkeypatch, mod
 
     state = OmegaConf.create({"mode": mode, "sweep": {"dir": "/runs/sweep"}, "sweeper": {"_target_": sweeper}})
     state.mode = RunMode[mode]
+    import deepcurrents.experiments.multirun as multirun
+
     fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
     monkeypatch.setattr(runner, "HydraConfig", fake)
+    monkeypatch.setattr(multirun, "HydraConfig", fake)
     assert runner.continue_hint(Path("/runs/job")).startswith(said)
 
 
 @pytest.mark.parametrize("launcher, trainer, refused", [
-    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher", "ddp_cpu", True),
-    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher", "cpu", False),
-    ("hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher", "ddp", False),
+    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher", ["trainer=ddp_cpu"], True),
+    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher", ["trainer=cpu", "trainer.devices=2"], True),
+    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher", ["trainer=cpu"], False),
+    ("hydra._internal.core_plugins.basic_launcher.BasicLauncher",
+     ["trainer=ddp_cpu", "trainer.strategy=ddp_spawn"], False),
+    ("hydra_plugins.hydra_submitit_launcher.submitit_launcher.SlurmLauncher", ["trainer=ddp"], False),
 ])
 def test_a_local_multirun_refuses_a_ddp_trainer(monkeypatch, launcher, trainer, refused):
     """-m with trainer=ddp_cpu on the local launcher: Lightning re-ran the command line, -m included, in its second
@@ -463,10 +490,10 @@ def test_a_local_multirun_refuses_a_ddp_trainer(monkeypatch, launcher, trainer, 
     state = OmegaConf.create({"launcher": {"_target_": launcher}})
     fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
     monkeypatch.setattr(cli_train, "HydraConfig", fake)
-    cfg = compose_cfg(["experiment=minimal_trefoil", f"trainer={trainer}"])
+    cfg = compose_cfg(["experiment=minimal_trefoil", *trainer])
     if refused:
-        with pytest.raises(ConfigError, match=r"^trainer\.strategy=ddp with 2 devices cannot run inside a local "
-                                              r"multirun \(-m\)"):
+        with pytest.raises(ConfigError, match=r"^trainer\.devices=2 with trainer\.num_nodes=1 \(strategy \w+: DDP\) "
+                                              r"cannot run inside a local multirun \(-m\)"):
             cli_train.check_local_ddp_sweep(cfg)
     else:
         cli_train.check_local_ddp_sweep(cfg)

@@ -406,7 +406,8 @@ def test_a_disk_that_fills_up_under_the_csv_logger_is_one_sentence(tmp_path, mon
 
     monkeypatch.setattr(csv_logs._ExperimentWriter, "save", full)
     with pytest.raises(UserInputError, match=r"^Writing the run's files failed at step \d+ \(No space left on device: "
-                                             r".*metrics\.csv\); free some space, then continue with ckpt_path=auto"):
+                                             r".*metrics\.csv\); no checkpoint had been written yet; free some space\. "
+                                             r"Continue with ckpt_path=auto hydra\.run\.dir=.*run\.$"):
         train(compose_cfg([*TINY, "logger=csv", "trainer.max_steps=3", "trainer.log_every_n_steps=1"]),
               out_dir=tmp_path / "run")
 

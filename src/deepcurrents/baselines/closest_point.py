@@ -95,7 +95,7 @@ class ClosestPointModule(DeepCurrentsModule):
             log.info("closest-point baseline: training for %.1f s (the wall time of %s)", self.time_budget_s,
                      self.wall_time_from)
         super().on_train_start()
-        if self.time_budget_s is None:
+        if self.time_budget_s is None and self.trainer.is_global_zero:
             steps = self.trainer.max_steps
             limit = f"trainer.max_steps={steps} steps" if steps is not None and steps >= 0 else "trainer.max_time"
             log.warning("The closest-point baseline has no wall-time budget (neither model.wall_time_from nor "

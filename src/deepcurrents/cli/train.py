@@ -10,13 +10,12 @@ from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.errors import ConfigError, NonFiniteLossError, UserInputError
 from deepcurrents.experiments.config import CONFIG_DIR
-from deepcurrents.experiments.multirun import FAILED_JOB_FILE
+from deepcurrents.experiments.multirun import FAILED_JOB_FILE, in_multirun
 from deepcurrents.experiments.run_dir import writable_problem
 from deepcurrents.experiments.runner import train
 
@@ -27,7 +26,7 @@ def run_cli(cfg: DictConfig) -> float | None:
 
     Returns the value an Optuna sweep minimises (``cfg.objective``), if set.
     """
-    if HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+    if in_multirun():
         exit_on_user_error(check_local_ddp_sweep, cfg)
         # a requeued job or a sweep run again into the same folder: an earlier attempt's failure is not this one's
         (Path(HydraConfig.get().runtime.output_dir) / FAILED_JOB_FILE).unlink(missing_ok=True)
@@ -50,10 +49,15 @@ def check_local_ddp_sweep(cfg: DictConfig) -> None:
     launcher = str(OmegaConf.select(HydraConfig.get(), "launcher._target_", default=""))
     trainer = cfg.get("trainer") or {}
     devices, nodes = trainer.get("devices", 1), trainer.get("num_nodes", 1)
-    if launcher.endswith("BasicLauncher") and "ddp" in str(trainer.get("strategy", "")) and (devices, nodes) != (1, 1):
-        raise ConfigError(f"trainer.strategy={trainer.get('strategy')} with {devices} devices cannot run inside a "
-                          "local multirun (-m): each DDP process would run the whole sweep; run its jobs one command "
-                          "at a time, or with hydra/launcher=submitit_slurm on a cluster.")
+    strategy = str(trainer.get("strategy") or "auto")
+    # more than one process, started by re-running the script: Lightning's "auto" picks DDP for several devices;
+    # ddp_spawn / ddp_fork start theirs from this process instead
+    rerun = strategy == "auto" or ("ddp" in strategy and not any(w in strategy for w in ("spawn", "fork")))
+    if launcher.endswith("BasicLauncher") and rerun and (devices, nodes) != (1, 1):
+        raise ConfigError(f"trainer.devices={devices} with trainer.num_nodes={nodes} (strategy {strategy}: DDP) cannot "
+                          "run inside a local multirun (-m): Lightning starts each further process with this command "
+                          "line, so each would run the whole sweep; run its jobs one command at a time, or with "
+                          "hydra/launcher=submitit_slurm on a cluster.")
 
 
 def failed_job(err: Exception, cfg: DictConfig) -> float | None:

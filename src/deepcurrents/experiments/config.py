@@ -166,6 +166,6 @@ def warn_unread_schedule_settings(cfg: DictConfig, overrides: list[str]) -> None
     for override in overrides:
         key, _, value = override.lstrip("+~").partition("=")
         if key in unread:
-            log.warning("%s=%s changes nothing: model.optim.schedule=%s reads %s, not it (preset=cpu and the recipes "
-                        "use the cosine schedule, preset=paper the step one).", key, value, schedule,
-                        " and ".join(SCHEDULE_KEYS[schedule]))
+            log.warning("%s=%s changes nothing: this run's schedule, model.optim.schedule=%s (set by its experiment "
+                        "and preset), reads %s instead; set those, or choose the other schedule.", key, value,
+                        schedule, " and ".join(SCHEDULE_KEYS[schedule]))

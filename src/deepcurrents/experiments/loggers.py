@@ -15,9 +15,10 @@ from typing import Any
 
 import lightning as L
 from hydra.core.hydra_config import HydraConfig
-from hydra.types import RunMode
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
+
+from deepcurrents.experiments.multirun import in_multirun
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +43,7 @@ def build_logger(cfg: DictConfig, out_dir: Path, member: str | None = None):
         group = None
         if member is not None:
             name, group = f"{name}/{member}", str(out_dir.parent)
-        elif HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN:
+        elif in_multirun():
             name, group = f"{name}/{HydraConfig.get().job.num}", str(HydraConfig.get().sweep.dir)
         kwargs["name"] = name
         if group is not None and not cfg.logger.get("group"):
@@ -50,23 +51,10 @@ def build_logger(cfg: DictConfig, out_dir: Path, member: str | None = None):
     return instantiate(cfg.logger, **kwargs)
 
 
-def run_config(cfg: DictConfig) -> dict[str, Any]:
-    """The run's whole config as plain data (resolved where it resolves), with the command line's overrides: what a
-    logger records of a run, so that a sweep's runs differ in W&B by what the sweep varied (``data.*``, ``seed``,
-    ``trainer.*``, not only the model's settings)."""
-    try:
-        config = OmegaConf.to_container(cfg, resolve=True)
-    except Exception:  # an interpolation that resolves only inside Hydra's own run (the config is still worth having)
-        config = OmegaConf.to_container(cfg, resolve=False)
-    if HydraConfig.initialized():
-        config["overrides"] = list(HydraConfig.get().overrides.task)
-    return config
-
-
 class LogRunConfig(L.Callback):
-    """Hands every logger the run's config (:func:`run_config`) when fitting starts, in place of Lightning's own
-    record of the module's init arguments (``enable_autolog_hparams=False``), which lacked the data, trainer and seed
-    settings and carried every vertex of Γ."""
+    """Hands every logger the run's config (the module's ``run_config`` with the overrides) when fitting starts,
+    in place of Lightning's own record of the module's init arguments (``enable_autolog_hparams=False``), which
+    lacked the data, trainer and seed settings and carried every vertex of Γ."""
 
     def __init__(self, config: dict[str, Any]) -> None:
         self.config = config

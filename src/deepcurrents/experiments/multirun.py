@@ -14,13 +14,25 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 log = logging.getLogger(__name__)
 
 
 FAILED_JOB_FILE = "error.txt"  # the sentence a sweep job stopped on (cli.train.failed_job)
+
+
+def in_multirun() -> bool:
+    """Whether this process runs a job of a Hydra multirun (``-m``: a grid sweep or an Optuna search)."""
+    return HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN
+
+
+def is_optuna_search(hydra_cfg: Any) -> bool:
+    """Whether Hydra's config (``hydra``) sweeps with the Optuna sweeper (``hparams_search=…``)."""
+    return "optuna" in str(OmegaConf.select(hydra_cfg, "sweeper._target_", default="")).lower()
 
 
 def job_failed(job_dir: Path) -> bool:
@@ -110,22 +122,28 @@ class MultirunTable(Callback):
         sweep_dir = Path(config.hydra.sweep.dir)
         failed = failed_jobs(sweep_dir)
         rows = write_multirun_table(sweep_dir, config.get("objective"), failed)
+        # jobs that ran a suite (experiment=table1 …) write their own tables, not a metrics.json of the job
+        suites = [p.parent.name for p in sweep_dir.glob("*/suite.json") if not job_failed(p.parent)]
         if failed:
-            if not rows:  # the failed jobs are still listed where the table would be
-                (sweep_dir / "table.md").write_text("No job of this sweep finished.\n")
+            if not rows:  # the failed jobs are still listed where the table would be (a stale table.csv goes)
+                (sweep_dir / "table.csv").unlink(missing_ok=True)
+                ran = (f"Jobs {', '.join(sorted(suites, key=lambda n: (len(n), n)))} ran suites (their tables are in "
+                       "their folders).\n") if suites else "No job of this sweep finished.\n"
+                (sweep_dir / "table.md").write_text(ran)
             common = common_overrides([*collect_jobs(sweep_dir), *failed])
             with open(sweep_dir / "table.md", "a") as fh:
                 fh.write("\nFailed jobs:\n\n")
                 for j in failed:
-                    fh.write(f"- {j['num']}: {' '.join(o for o in j['overrides'] if o not in common)}: {j['error']}\n")
+                    told = [o for o in j["overrides"] if o not in common] or j["overrides"]
+                    fh.write(f"- {j['num']}: {' '.join(told)}: {j['error']}\n")
         if rows:
             log.info("%d runs side by side: %s", len(rows), sweep_dir / "table.md")
         if failed:
             first = failed[0]
             where = f"; the other {len(rows)} are in {sweep_dir / 'table.md'}" if rows else ""
-            text = (f"{len(failed)} of {len(failed) + len(rows)} sweep jobs failed (job {first['num']}: "
+            text = (f"{len(failed)} of {len(failed) + len(rows) + len(suites)} sweep jobs failed (job {first['num']}: "
                     f"{first['error'].rstrip('.')}){where}.")
-            search = "optuna" in str(OmegaConf.select(config, "hydra.sweeper._target_", default="")).lower()
+            search = is_optuna_search(config.hydra)
             if search and rows:  # failed trials scored the worst value; the best parameters stand
                 log.warning(text)
                 return

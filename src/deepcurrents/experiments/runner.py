@@ -36,7 +36,6 @@ import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.errors import ConfigCompositionException, InstantiationException
-from hydra.types import RunMode
 from lightning.pytorch.accelerators import CPUAccelerator
 from lightning.pytorch.callbacks.progress import ProgressBar
 from lightning.pytorch.utilities.exceptions import MisconfigurationException, SIGTERMException
@@ -45,7 +44,8 @@ from omegaconf import DictConfig, OmegaConf
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.metrics import metrics_json
 from deepcurrents.experiments.config import trainer_overrides, validate_config, warn_unread_schedule_settings
-from deepcurrents.experiments.loggers import LogRunConfig, build_logger, finished_loggers, run_config
+from deepcurrents.experiments.loggers import LogRunConfig, build_logger, finished_loggers
+from deepcurrents.experiments.multirun import in_multirun, is_optuna_search
 from deepcurrents.experiments.run_dir import (
     RunLock,
     check_free_space,
@@ -54,7 +54,7 @@ from deepcurrents.experiments.run_dir import (
     resume_path,
 )
 from deepcurrents.models.callbacks import progress_bar
-from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint, ResumeState
+from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint, ResumeState, kept_checkpoint
 from deepcurrents.models.current_module import boundary_spec
 from deepcurrents.models.loading import check_resumable
 
@@ -236,7 +236,7 @@ def build(cfg: DictConfig):
 
 
 def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None = None,
-          member: str | None = None) -> dict[str, Any] | None:
+          member: str | None = None, overrides: list[str] | None = None) -> dict[str, Any] | None:
     """Trains and evaluates one run into ``out_dir`` (default: the run directory); returns its metrics
     (None on non-zero DDP ranks). A config with a ``suite`` runs each member instead (:func:`run_suite`).
 
@@ -245,18 +245,19 @@ def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None 
     and a checkpoint to resume from (``ckpt_path=FILE|auto``) must be a DeepCurrents checkpoint of this model
     kind and problem (models.loading.check_resumable). SIGTERM or SIGUSR1 (preemption) or Ctrl-C writes
     ``checkpoints/last.ckpt`` after the running step and ends the process with status 143 (Ctrl-C: 130);
-    ``ckpt_path=auto`` continues from it. ``member``: the suite member this run is (its logged run's name).
+    ``ckpt_path=auto`` continues from it. ``member``, ``overrides``: the suite member this run is and its overrides
+    (its logged run's name and record; else the command line's).
     """
     out_dir = make_run_dir(Path(out_dir) if out_dir is not None else output_dir(cfg))
     with RunLock(out_dir) if is_global_rank_zero() else nullcontext():
         if cfg.get("suite"):
             run_suite(cfg, out_dir)
             return None
-        return _train_one(cfg, out_dir, resume_hint, member)
+        return _train_one(cfg, out_dir, resume_hint, member, overrides)
 
 
-def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
-               member: str | None = None) -> dict[str, Any] | None:
+def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None, member: str | None = None,
+               overrides: list[str] | None = None) -> dict[str, Any] | None:
     validate_config(cfg)
     if is_global_rank_zero():
         warn_unread_schedule_settings(cfg, inherited_overrides())
@@ -279,7 +280,9 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
     trainer: L.Trainer = build_trainer(
         cfg,
         logger=build_logger(cfg, out_dir, member),
-        callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), preemption, LogRunConfig(run_config(cfg))],
+        callbacks=[*build_callbacks(cfg, out_dir), ResumeState(), preemption,
+                   LogRunConfig({**module.run_config, "overrides": command_overrides() if overrides is None
+                                 else overrides})],
         plugins=[AtomicCheckpointIO()],
         default_root_dir=str(out_dir),
         enable_autolog_hparams=False,  # LogRunConfig logs the whole config instead of the module's arguments
@@ -300,9 +303,9 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
             if err.errno not in (errno.ENOSPC, errno.EDQUOT):
                 raise
             where = f": {err.filename}" if err.filename else ""
-            raise UserInputError(f"Writing the run's files failed at step {trainer.global_step} ({err.strerror}{where}"
-                                 f"); free some space, then continue with ckpt_path=auto hydra.run.dir={out_dir} (the "
-                                 "last checkpoint is kept).") from None
+            raise UserInputError(f"Writing the run's files failed at step {trainer.global_step} ({err.strerror}{where})"
+                                 f"; {kept_checkpoint(trainer)}; free some space. "
+                                 f"{resume_hint or continue_hint(out_dir)}") from None
         except SIGTERMException:
             name = preemption.signal_name
             if trainer.is_global_zero:
@@ -315,8 +318,8 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None,
         if trainer.interrupted:
             log.warning("Training was interrupted; evaluating the model as it is.")
         elif resumed_step is not None and trainer.global_step == resumed_step and trainer.is_global_zero:
-            log.warning("No step was trained: %s had already used the run's budget (trainer.max_steps, "
-                        "trainer.max_time); the final evaluation scores it as it is.", resume)
+            log.warning("No step was trained: %s had already used the run's budget (its steps or seconds); the "
+                        "final evaluation scores it as it is.", resume)
         if not trainer.is_global_zero:
             return None
         started = time.perf_counter()
@@ -343,21 +346,24 @@ def continue_hint(out_dir: Path) -> str:
     """How to continue a stopped run: a single run from its directory; a multirun's job by the same command again
     into the same sweep directory (``hydra.run.dir`` means nothing under ``-m``, and the jobs after it have not
     run); an Optuna trial not at all (a search samples new trials)."""
-    if not (HydraConfig.initialized() and HydraConfig.get().mode == RunMode.MULTIRUN):
+    if not in_multirun():
         return f"Continue with ckpt_path=auto hydra.run.dir={out_dir}."
     sweep = HydraConfig.get().sweep.dir
-    if "optuna" in str(OmegaConf.select(HydraConfig.get(), "sweeper._target_", default="")).lower():
+    if is_optuna_search(HydraConfig.get()):
         return ("An Optuna search does not resume its trials: run it again (hydra.sweeper.storage=sqlite:///….db "
                 "keeps the study's finished trials).")
     return (f"Continue the sweep with the same command plus ckpt_path=auto hydra.sweep.dir={sweep} (each job from "
             "its own checkpoint; the jobs not yet run then run).")
 
 
+def command_overrides() -> list[str]:
+    """The command line's overrides (a multirun job's own values included); none outside Hydra."""
+    return list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
+
+
 def inherited_overrides() -> list[str]:
     """The command line's overrides that every suite member inherits (all but ``experiment=``)."""
-    if not HydraConfig.initialized():
-        return []
-    return [o for o in HydraConfig.get().overrides.task if not o.lstrip("+~").startswith("experiment=")]
+    return [o for o in command_overrides() if not o.lstrip("+~").startswith("experiment=")]
 
 
 # The data settings that choose a run's problem (which curve, mesh, point cloud, family or part); the others modify
@@ -407,6 +413,8 @@ def compose_members(cfg: DictConfig, inherited: list[str], out_dir: Path) -> dic
     members = {}
     for member in cfg.suite.runs:
         name, overrides = str(member.name), member_overrides(member, inherited)
+        if name in members:
+            raise ConfigError(f"The suite names two members {name}; each needs its own name (its folder).")
         try:
             member_cfg = hydra.compose(config_name="train",
                                        overrides=overrides + [f"paths.output_dir={out_dir / name}"])
@@ -415,8 +423,10 @@ def compose_members(cfg: DictConfig, inherited: list[str], out_dir: Path) -> dic
                 check_constructor_keys(member_cfg, group)
         except (ConfigError, ConfigCompositionException) as err:
             text = " ".join(str(err).split()).rstrip(".")
-            if isinstance(err, ConfigCompositionException):  # Hydra's advice to add the key with '+' cannot help
-                text = str(err).splitlines()[0].rstrip(".") + " (this member has no such setting)"
+            first = str(err).splitlines()[0].rstrip(".")
+            if isinstance(err, ConfigCompositionException) and first.startswith(("Could not override",
+                                                                                 "Could not delete")):
+                text = first + " (this member has no such setting)"  # Hydra's advice to add it with '+' cannot help
             raise ConfigError(f"Suite member {name} cannot run with the command line's overrides "
                               f"({' '.join(inherited) or 'none'}), which reach every member: {text}.") from None
         members[name] = (overrides, member_cfg)
@@ -435,7 +445,9 @@ def check_constructor_keys(cfg: DictConfig, group: str) -> None:
         return
     unknown = [k for k in node if not str(k).startswith("_") and k not in params]
     if unknown:
-        raise ConfigError(f"{group}.{unknown[0]} is not a setting {str(target).rsplit('.', 1)[-1]} takes.")
+        owner = str(target).rsplit(".", 1)[-1]
+        raise ConfigError(unknown_key_message(node, owner, str(unknown[0]))
+                          or f"{group}.{unknown[0]} is not a setting {owner} takes.")
 
 
 def _leaves(cfg: DictConfig) -> dict[str, str]:
@@ -495,9 +507,11 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
         member_dir = out_dir / name
         log.info("suite member %s: %s", name, " ".join(overrides))
         command = " ".join(shlex.quote(o) for o in [*overrides, "ckpt_path=auto", f"hydra.run.dir={member_dir}"])
-        hint = (f"The suite continues with its command and ckpt_path=auto hydra.run.dir={out_dir} (each member from "
-                f"its own checkpoint), or this member ({name}) alone with `python train.py {command}`.")
-        metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint, member=name)
+        suite = (continue_hint(out_dir).rstrip(".") if in_multirun() else
+                 f"The suite continues with its command and ckpt_path=auto hydra.run.dir={out_dir}")
+        hint = (f"{suite} (each member from its own checkpoint), or this member ({name}) alone with `python train.py "
+                f"{command}`.")
+        metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint, member=name, overrides=overrides)
         results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
     (out_dir / "suite.json").write_text(metrics_json(results))
     report = cfg.suite.get("report") or "deepcurrents.experiments.tables.write_table"

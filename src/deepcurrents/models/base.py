@@ -18,6 +18,7 @@ from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least
 from deepcurrents.eval.meshing import grid_shape
 from deepcurrents.eval.metrics import mesh_summary, metrics_json
 from deepcurrents.eval.plots import MeshView, plot_mesh
+from deepcurrents.models.checkpointing import kept_checkpoint
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
 
 CHECKPOINT_KEY = "deepcurrents"
@@ -143,12 +144,9 @@ class DeepCurrentsModule(L.LightningModule):
     def check_finite(self, loss: torch.Tensor | float, hint: str = "try a lower model.optim.lr") -> None:
         value = float(loss.detach()) if isinstance(loss, torch.Tensor) else float(loss)
         if not math.isfinite(value):
-            trainer = self._trainer  # None outside a fit (the attribute, not the property, which raises then)
-            kept = [cb.dirpath for cb in (trainer.checkpoint_callbacks if trainer is not None else [])
-                    if cb.dirpath and any(Path(cb.dirpath).glob("*.ckpt"))]
-            where = f"the last good checkpoint is kept in {kept[0]}" if kept else "no checkpoint had been written yet"
+            # self._trainer: None outside a fit (the property would raise then)
             raise NonFiniteLossError(f"The loss became {value} at step {self.global_step}; training stopped, and "
-                                     f"{where} ({hint}).")
+                                     f"{kept_checkpoint(self._trainer)} ({hint}).")
 
     # ------------------------------------------------------------------------------- training clock
     def elapsed_train_seconds(self) -> float:

@@ -76,6 +76,14 @@ def current_umask() -> int:
     return mask
 
 
+def kept_checkpoint(trainer: L.Trainer | None) -> str:
+    """Where a stopped run's last good checkpoint is, as the end of a sentence: "the last good checkpoint is kept in
+    DIR", or "no checkpoint had been written yet" (a run stopped before its first one)."""
+    kept = [cb.dirpath for cb in (trainer.checkpoint_callbacks if trainer is not None else [])
+            if cb.dirpath and any(Path(cb.dirpath).glob("*.ckpt"))]
+    return f"the last good checkpoint is kept in {kept[0]}" if kept else "no checkpoint had been written yet"
+
+
 def atomic_torch_save(obj: Any, path: str | Path) -> None:
     """torch.save into a temporary file in the same directory, fsync, then os.replace onto ``path``."""
     path = Path(path)
