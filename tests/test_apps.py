@@ -147,6 +147,9 @@ def test_render_app_writes_stills_turntables_and_mesh_pictures(run, tmp_path):
         render_checkpoint(app_cfg(RenderConfig, ckpt_path=ckpt, turntable=True, frames=0))
     with pytest.raises(ConfigError, match="camera.width"):
         render_checkpoint(app_cfg(RenderConfig, ckpt_path=ckpt, **{"camera.width": -3}))
+    for bad in (0, -8, 4):  # 0 was a ZeroDivisionError in the meshing, -8 an empty mesh blamed on the current
+        with pytest.raises(ConfigError, match=rf"^resolution={bad} must be an integer ≥ 8"):
+            render_checkpoint(app_cfg(RenderConfig, ckpt_path=ckpt, mesh=True, resolution=bad))
 
 
 def test_extract_at_two_resolutions_gives_areas_that_agree(run, tmp_path):

@@ -243,6 +243,11 @@ TRAIN_CASES = [
     ("sampling share a word", overrides("experiment=minimal_trefoil", "data.sampling.kind=importance",
                                         "data.sampling.uniform_fraction=half"),
      r"data\.sampling\.uniform_fraction=half must be in \(0, 1\]"),
+    # a string 'false' is truthy: the closed mesh came out for the paper's open cut; 0.5 samples dropped the bound
+    ("close_boundary a string", overrides("experiment=minimal_trefoil", "evaluation.mesh.close_boundary='false'"),
+     r"evaluation\.mesh\.close_boundary='false' must be true or false"),
+    ("sharpened samples a fraction", overrides("experiment=minimal_trefoil", "evaluation.sharpened.samples=0.5"),
+     r"evaluation\.sharpened\.samples=0\.5 must be an integer ≥ 0"),
     ("lr a word", overrides("experiment=minimal_trefoil", "model.optim.lr=fast"),
      r"model\.optim\.lr=fast must be positive"),
     ("step_size a word", overrides("experiment=minimal_trefoil", "model.optim.step_size=often"),

@@ -132,6 +132,8 @@ def render_checkpoint(cfg: DictConfig) -> list:
     device = resolve_device(cfg.device)
     name = plain_file_name(cfg.name) or "render"
     positive_int("frames", cfg.frames)
+    if cfg.resolution is not None:  # as extract refuses it: 0 was a ZeroDivisionError inside the meshing
+        positive_int("resolution", cfg.resolution, 8)
     if not cfg.fps > 0:
         raise ConfigError(f"fps={cfg.fps} must be positive.")
     sizes = _sizes(cfg, device)

@@ -123,6 +123,7 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "evaluation.mesh.newton_steps", 0)
     _positive_int(cfg, "evaluation.mesh.resolution", 8)
     _positive_int(cfg, "evaluation.mesh.strip_rows")
+    _positive_int(cfg, "evaluation.sharpened.samples", 0)  # 0: no sharpened bound; 0.5 dropped it silently
     _positive_int(cfg, "evaluation.curve.resolution", 8)
     if OmegaConf.select(cfg, "evaluation.curve.resolution") is not None:  # before the training (any 2D data kind)
         check_curve_grid(cfg.evaluation.curve.resolution, "evaluation.curve.resolution")
@@ -130,7 +131,7 @@ def validate_config(cfg: DictConfig) -> None:
     _positive_int(cfg, "trainer.log_every_n_steps")  # 0 silently turned the training logs off
     for key in ("evaluation.mass_rel_stderr", "evaluation.mass_tube_radius", "evaluation.mesh.delta",
                 "evaluation.mesh.boundary_tube", "evaluation.mesh.padding", "evaluation.mesh.level_blend",
-                "evaluation.sharpened.kappa", "evaluation.sharpened.samples", "evaluation.curve.delta",
+                "evaluation.sharpened.kappa", "evaluation.curve.delta",
                 "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
     for key, lo, hi in (("evaluation.mesh.min_alignment", -1.0, 1.0), ("evaluation.curve.min_alignment", -1.0, 1.0),
@@ -139,9 +140,10 @@ def validate_config(cfg: DictConfig) -> None:
         if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
                                       and lo <= value <= hi):
             raise ConfigError(f"{key}={value!r} must be a number in [{lo:g}, {hi:g}].")
-    refine_mesh = OmegaConf.select(cfg, "evaluation.mass_refine_mesh")
-    if refine_mesh not in (None, True, False):
-        raise ConfigError(f"evaluation.mass_refine_mesh={refine_mesh!r} must be true or false.")
+    for key in ("evaluation.mass_refine_mesh", "evaluation.mesh.close_boundary"):  # 'false' (a string) is truthy
+        value = OmegaConf.select(cfg, key)
+        if value not in (None, True, False):
+            raise ConfigError(f"{key}={value!r} must be true or false.")
     method = OmegaConf.select(cfg, "evaluation.mesh.method")
     if method is not None and method not in MESH_METHOD_CHOICES:
         raise ConfigError(f"evaluation.mesh.method={method!r} must be one of {', '.join(MESH_METHOD_CHOICES)}.")
