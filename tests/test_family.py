@@ -820,3 +820,20 @@ def test_a_family_mesh_with_faces_wound_backwards_keeps_its_vertices_and_its_one
     assert np.array_equal(np.sort(f, 1), np.sort(faces, 1))  # the same triangles
     assert np.allclose(face_normals(v, f), face_normals(verts, faces))  # wound as the clean cap
     assert len(loop_indices(v, f)) == 1
+
+
+def test_an_apps_padding_reaches_a_family_members_meshing_box(trained):
+    """extract/render/evaluate padding= was dropped for family checkpoints (the box came from the run's own padding:
+    padding=0, 1 and unset gave bit-identical meshes); a padding of p makes the cube's side (1 + 2p) × the box's."""
+    from deepcurrents.cli.common import mesh_settings
+    from deepcurrents.models.loading import load_module
+
+    out, _, _ = trained
+    module = load_module(out / "checkpoints" / "last.ckpt")
+    lo, hi = (module.train_bounds[0].double().numpy()[i] for i in (0, 1))
+    for padding in (0.0, 0.3):
+        bounds = mesh_settings(module, 0, padding=padding)["bounds"]
+        expected = (1 + 2 * padding) * float((hi - lo).max()) + 2e-3
+        assert float((bounds[1] - bounds[0]).max()) == pytest.approx(min(expected, 2.0), rel=1e-9)
+        assert np.all(bounds[0] <= lo + 1e-12) and np.all(bounds[1] >= hi - 1e-12)
+    assert not np.allclose(mesh_settings(module, 0)["bounds"], mesh_settings(module, 0, padding=0.0)["bounds"])

@@ -102,7 +102,8 @@ def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> di
     settings = dict(run_evaluation(module).get("mesh") or {})
     settings.update({k: v for k, v in overrides.items() if v is not None})
     if settings.get("bounds") is None and callable(getattr(module, "meshing_bounds", None)):
-        settings["bounds"] = module.meshing_bounds([0 if shape is None else shape])
+        # the app's padding= (ignored before: the family's box came from the run's own padding)
+        settings["bounds"] = module.meshing_bounds([0 if shape is None else shape], padding=overrides.get("padding"))
         settings.pop("padding", None)
     elif settings.get("bounds") is None and callable(getattr(module, "target_bounds", None)):
         # reconstructions: the run meshed over its target's box, so must the apps

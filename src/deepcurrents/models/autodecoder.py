@@ -219,10 +219,11 @@ class AutodecoderModule(DeepCurrentsModule):
         return ConditionedCurrent(self.family, z, [torch.as_tensor(lp, dtype=torch.float32) for lp in loops]).eval()
 
     def meshing_bounds(self, shapes: Sequence[int], loops: Sequence[np.ndarray] = (),
-                       boxes: Sequence[np.ndarray] = ()) -> np.ndarray:
+                       boxes: Sequence[np.ndarray] = (), padding: float | None = None) -> np.ndarray:
         """The region to mesh: the cube around the union of the given training shapes' boxes, the loops'
         box and any further ``boxes`` (2, 3), of side
-        (1 + 2·``evaluation.mesh.padding``) × its largest extent, clipped to the domain. → (2, 3).
+        (1 + 2·padding) × its largest extent, clipped to the domain; ``padding`` None: ``evaluation.mesh.padding``
+        (an app's ``padding=`` override otherwise). → (2, 3).
 
         A cube rather than the tight box: a learned (or interpolated) surface may leave the target's box,
         and a thin box would hide spurious sheets from the UCD."""
@@ -231,7 +232,8 @@ class AutodecoderModule(DeepCurrentsModule):
         lo = np.min([b[0] for b in boxes], 0)
         hi = np.max([b[1] for b in boxes], 0)
         # checkpoints written before the one `evaluation` node kept the family's padding at evaluation.padding
-        padding = self.evaluation.get("padding", dict(self.evaluation.get("mesh", {})).get("padding", 0.1))
+        if padding is None:
+            padding = self.evaluation.get("padding", dict(self.evaluation.get("mesh", {})).get("padding", 0.1))
         half = 0.5 * (1.0 + 2.0 * float(padding)) * float((hi - lo).max()) + 1e-3
         centre = 0.5 * (lo + hi)
         return np.stack([np.maximum(centre - half, -1.0), np.minimum(centre + half, 1.0)])
