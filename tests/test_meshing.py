@@ -145,6 +145,27 @@ def test_a_tube_that_holds_the_whole_surface_is_named_as_the_cause(monkeypatch, 
 
 
 
+def test_a_tube_widened_by_coarse_cells_is_said_and_names_the_resolution(monkeypatch, caplog):
+    """At a low resolution the tube is 1.5 cells wide, not boundary_tube: the probe's trefoil meshed at 16 came out
+    at 2.2× its area without a word, and at 8 the empty mesh said "lower boundary_tube", which could not help."""
+    import logging
+
+    from test_render import AnalyticDisk
+
+    monkeypatch.setitem(METHODS, "plane", PlaneMethod)
+    disk = AnalyticDisk(radius=0.5, normal=tuple(PlaneMethod.normal.double().numpy()))
+    with caplog.at_level(logging.WARNING):
+        extract_surface(disk, resolution=40, method="plane")  # 0.03-wide cells: 1.5 of them inside the 0.04 tube
+    assert "widened" not in caplog.text
+    with caplog.at_level(logging.WARNING):
+        extract_surface(disk, resolution=16, method="plane")
+    assert "resolution=16 gives 0.0" in caplog.text and "resolution=" in caplog.text.split("keeps it as set")[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # cells a third of the disk wide: the tube holds all of it
+        result = extract_surface(disk, resolution=3, method="plane")
+    assert len(result.mesh.faces) == 0 and "raise resolution (the tube is 1.5 cells wide)" in caplog.text
+
+
 class PinholedPlane(PlaneMethod):
     """The plane, with the one face whose centroid is nearest the disk's centre failing the carrying test (as
     a lone face under δ does inside a trained surface)."""

@@ -177,7 +177,7 @@ def extract_surface(
         min_component: drop components smaller than this fraction of the total area.
         min_alignment: level set only: keep faces where cos(ω, ∇f) is at least this (drops the
             complementary level surface, where ω points against ∇f).
-        close_boundary: False gives the paper's mesh (|ω| ≥ δ cut only, no tube, no strip, no Newton).
+        close_boundary: False: the |ω| ≥ δ cut only, no tube, no strip, no Newton (with method="level_set": the paper's mesh).
         method: a key of ``METHODS``. "phase" (default, ``meshing.phase``): every sheet of the surface,
             whatever f's offset there. "level_set" (``meshing.level_set``): the paper's f = s, one level for
             the whole surface (it misses sheets where f's jump does not straddle s, e.g. an undertrained
@@ -200,6 +200,13 @@ def extract_surface(
     closed_area = 0.0
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
     tube = max(boundary_tube, 1.5 * voxel) if close_boundary else 0.0
+    widened = tube > boundary_tube  # by the voxels: the border is cut and closed at this coarse a scale
+    if widened:
+        enough = (f"; {resolution_key}={math.ceil(resolution * 1.5 * voxel / boundary_tube)} or more keeps it as set"
+                  if boundary_tube > 0 else "")
+        log.warning("%s=%d gives %.3g-wide cells, so the boundary tube is widened from %.3g to %.3g (1.5 cells): a "
+                    "mesh this coarse can misplace its border and add area%s.", resolution_key, resolution, voxel,
+                    boundary_tube, tube, enough)
     empty = MeshingResult(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), finder.reported_level, 0)
     if not (vol.min() < level < vol.max()):
         log.warning("%s in the meshing region; the mesh is empty.", finder.empty_reason())
@@ -215,8 +222,9 @@ def extract_surface(
         before = len(faces)
         verts, faces = cut_tube(verts, faces, loops, tube)
         if before and not len(faces):  # not the current's fault: say which setting removed the surface
-            log.warning("The boundary tube (radius %.3g about Γ) holds the whole level set: the mesh is empty; "
-                        "lower boundary_tube.", tube)
+            log.warning("The boundary tube (radius %.3g about Γ) holds the whole level set: the mesh is empty; %s.",
+                        tube, f"raise {resolution_key} (the tube is 1.5 cells wide)" if widened
+                        else "lower boundary_tube")
             return empty
 
     if len(faces):
