@@ -177,7 +177,8 @@ def extract_surface(
         min_component: drop components smaller than this fraction of the total area.
         min_alignment: level set only: keep faces where cos(ω, ∇f) is at least this (drops the
             complementary level surface, where ω points against ∇f).
-        close_boundary: False: the |ω| ≥ δ cut only, no tube, no strip, no Newton (with method="level_set": the paper's mesh).
+        close_boundary: False: the |ω| ≥ δ cut only, no tube, no strip, no Newton (with method="level_set":
+            the paper's mesh).
         method: a key of ``METHODS``. "phase" (default, ``meshing.phase``): every sheet of the surface,
             whatever f's offset there. "level_set" (``meshing.level_set``): the paper's f = s, one level for
             the whole surface (it misses sheets where f's jump does not straddle s, e.g. an undertrained
