@@ -500,3 +500,14 @@ def test_a_local_multirun_refuses_a_ddp_trainer(monkeypatch, launcher, trainer, 
             cli_train.check_local_ddp_sweep(cfg)
     else:
         cli_train.check_local_ddp_sweep(cfg)
+
+
+def test_an_apps_stdout_is_its_json_summary_and_its_log_lines_go_to_stderr(run, tmp_path):
+    """Warnings went to stdout between the printed JSON's lines, so `… | jq` and json.load failed on it."""
+    from conftest import run_command_in_process
+
+    proc = run_command_in_process("deepcurrents.extract", [f"ckpt_path={run / 'checkpoints' / 'last.ckpt'}",
+                                                            "resolution=12", f"out_dir={tmp_path}"], cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(proc.stdout)["resolution"] == 12  # the whole of stdout is the summary
+    assert "resolution=12 gives" in proc.stderr  # the coarse grid's warning

@@ -31,7 +31,9 @@ def register_app(name: str, schema: type, doc: str | None = None) -> None:
     header = (doc or f"python -m deepcurrents.{name} ckpt_path=… [key=value …]").replace("${", "\\${")
     cs.store(name=name, node={
         "defaults": [f"{name}_schema", "_self_", {"override hydra/job_logging": "stdout"}],
-        "hydra": {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False},
+        # log lines on stderr, so that the JSON summary an app prints on stdout can be piped (jq, json.load)
+        "hydra": {"job_logging": {"handlers": {"console": {"stream": "ext://sys.stderr"}}},
+                  "run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False},
                   "help": {"app_name": f"deepcurrents.{name}", "header": header,
                            "footer": "Settings are key=value overrides; --cfg job prints them."}},
     })
