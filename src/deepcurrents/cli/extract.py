@@ -24,7 +24,7 @@ from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, ext
 from deepcurrents.eval.metrics import curve_length, mesh_summary, metrics_json
 from deepcurrents.eval.render import Camera, render_mesh
 from deepcurrents.models.current_module import input_mesh, metrics_in_input_units
-from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
+from deepcurrents.models.loading import area_in_file_units, file_frame, load_module, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.extract")
 
@@ -109,7 +109,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     (out / f"{stem}.json").write_text(metrics_json(summary))
     if cfg.picture:
         render_mesh(mesh, loops, Camera(width=480, height=480), out / f"{stem}.png",
-                    title=f"area {mesh.area:.4f}, {len(mesh.faces)} faces")
+                    title=f"area {area_in_file_units(module, mesh.area):.4g}, {len(mesh.faces)} faces")
         summary["picture"] = str(out / f"{stem}.png")
     return summary
 
