@@ -37,7 +37,7 @@ def test_train_writes_metrics_mesh_checkpoint_and_resumes(tmp_path):
     assert not list((out / "checkpoints").glob("*.tmp"))
 
 
-def test_2d_run_writes_curve_and_picture(tmp_path):
+def test_2d_run_writes_curve_and_picture(tmp_path, caplog):
     cfg = compose_cfg(["experiment=minimal_2d", *TINY])
     metrics = train(cfg, out_dir=tmp_path)
     assert (tmp_path / "current.png").is_file()
@@ -45,6 +45,22 @@ def test_2d_run_writes_curve_and_picture(tmp_path):
     assert metrics["curve_length"] == pytest.approx(written, rel=1e-9) and written > 0
     # the mass bound never undercuts the minimal length: the segment between (-0.5, 0) and (0.5, 0), length 1
     assert metrics["mass_length"] > 1.0 - 4 * metrics["mass_length_stderr"]
+    # extract on a 2D checkpoint: the curve's own settings take the app's values (they were dropped silently), the
+    # surface-only ones are named as not used
+    import logging
+
+    from conftest import app_cfg
+
+    from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
+
+    ckpt = str(tmp_path / "checkpoints" / "last.ckpt")
+    plain = extract_checkpoint(app_cfg(ExtractConfig, ckpt_path=ckpt, out_dir=str(tmp_path / "a")))
+    assert plain["curve_length"] == pytest.approx(written, rel=1e-6)
+    with caplog.at_level(logging.WARNING):
+        tubed = extract_checkpoint(app_cfg(ExtractConfig, ckpt_path=ckpt, out_dir=str(tmp_path / "b"),
+                                           boundary_tube=0.3, format="obj", close_boundary=False))
+    assert tubed["curve_length"] != plain["curve_length"]
+    assert "format" in caplog.text and "close_boundary" in caplog.text and "not used" in caplog.text
 
 
 def bad_obj(tmp_path):

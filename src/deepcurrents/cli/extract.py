@@ -29,6 +29,8 @@ from deepcurrents.models.loading import area_in_file_units, file_frame, load_mod
 log = logging.getLogger("deepcurrents.extract")
 
 FORMATS = ("ply", "obj", "off", "stl", "glb")
+# settings of a surface's meshing that a 2D current's curve has no counterpart for
+SURFACE_ONLY = ("close_boundary", "newton_steps", "min_component", "padding", "strip_rows", "level_blend")
 
 
 @dataclass
@@ -118,6 +120,14 @@ def extract_curve(module, current, cfg: DictConfig, out: Path) -> dict:
     """A 2D current's curve at ``cfg.resolution`` (the run's ``evaluation.curve`` settings otherwise):
     ``out/curve_r<resolution>.npz`` (one (K, 2) polyline per array) and its summary."""
     settings = {**dict(run_evaluation(module).get("curve") or {}), "resolution": int(cfg.resolution)}
+    # the curve's own settings (evaluation.curve) take the app's values; the surface-only ones cannot apply
+    settings.update({k: cfg[k] for k in ("delta", "boundary_tube", "min_alignment") if cfg[k] is not None})
+    if cfg.method not in (None, "auto"):  # phase | level_set, checked above
+        settings["method"] = cfg.method
+    ignored = [k for k in SURFACE_ONLY if cfg[k] is not None] + (["format"] if cfg.format != "ply" else [])
+    if ignored:
+        log.warning("%s: a 2D current's curve is written as curve_r%d.npz; %s apply to surfaces only and were not "
+                    "used.", cfg.ckpt_path, int(cfg.resolution), ", ".join(ignored))
     curves = extract_curve_2d(current, **settings)
     path = out / f"curve_r{cfg.resolution}.npz"
     np.savez(path, *curves)
