@@ -135,7 +135,8 @@ def validate_config(cfg: DictConfig) -> None:
                 "evaluation.curve.boundary_tube"):
         _nonnegative(cfg, key)
     for key, lo, hi in (("evaluation.mesh.min_alignment", -1.0, 1.0), ("evaluation.curve.min_alignment", -1.0, 1.0),
-                        ("evaluation.mesh.min_component", 0.0, 1.0)):  # a cosine; a fraction of the area
+                        ("evaluation.mesh.min_component", 0.0, 1.0),  # a cosine; a fraction of the area
+                        ("evaluation.mesh.padding", 0.0, 1.0)):  # the box's growth, as the apps take it
         value = OmegaConf.select(cfg, key)
         if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
                                       and lo <= value <= hi):
