@@ -511,3 +511,7 @@ def test_an_apps_stdout_is_its_json_summary_and_its_log_lines_go_to_stderr(run, 
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads(proc.stdout)["resolution"] == 12  # the whole of stdout is the summary
     assert "resolution=12 gives" in proc.stderr  # the coarse grid's warning
+    # another of Hydra's logging choices replaces it whole (patching the chosen one's handler broke `disabled`)
+    quiet = run_command_in_process("deepcurrents.extract", [f"ckpt_path={tmp_path / 'none.ckpt'}",
+                                                            "hydra/job_logging=disabled"], cwd=tmp_path)
+    assert quiet.returncode == 2 and quiet.stderr.strip().endswith("does not exist.")

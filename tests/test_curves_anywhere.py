@@ -263,11 +263,13 @@ def test_millimetre_circle_gives_the_disk_in_millimetres(tmp_path):
     assert summary["mesh_area_normalized"] * summary["normalization_scale"] ** 2 == pytest.approx(summary["mesh_area"])
     extracted = trimesh.load(summary["mesh"], process=False)
     assert boundary_error(extracted, [loop]) < 0.02 * radius
-    # the app's picture titles the area in the file's units, as the run's own mesh.png (it gave the box's 0.85)
-    from deepcurrents.models.loading import area_in_file_units, load_module
+    # render's mesh picture titles the area as the run's own mesh.png and metrics.json, in the curve's units (it
+    # gave the box's 0.85 beside 3073 mm²); extract's title is its JSON's mesh_area
+    from deepcurrents.models.current_module import reported_mesh_area
+    from deepcurrents.models.loading import load_module
 
     module = load_module(tmp_path / "run" / "checkpoints" / "last.ckpt")
-    assert area_in_file_units(module, summary["mesh_area_normalized"]) == pytest.approx(summary["mesh_area"])
+    assert reported_mesh_area(module, summary["mesh_area_normalized"]) == pytest.approx(summary["mesh_area"])
 
 
 @pytest.mark.slow

@@ -149,17 +149,26 @@ def test_a_tube_widened_by_coarse_cells_is_said_and_names_the_resolution(monkeyp
     """At a low resolution the tube is 1.5 cells wide, not boundary_tube: the probe's trefoil meshed at 16 came out
     at 2.2× its area without a word, and at 8 the empty mesh said "lower boundary_tube", which could not help."""
     import logging
+    import re
 
     from test_render import AnalyticDisk
 
+    from deepcurrents.eval.meshing import surface
+
     monkeypatch.setitem(METHODS, "plane", PlaneMethod)
+    monkeypatch.setattr(surface, "_WIDENED_SAID", set())  # said once per process and grid: start afresh
     disk = AnalyticDisk(radius=0.5, normal=tuple(PlaneMethod.normal.double().numpy()))
     with caplog.at_level(logging.WARNING):
         extract_surface(disk, resolution=40, method="plane")  # 0.03-wide cells: 1.5 of them inside the 0.04 tube
     assert "widened" not in caplog.text
     with caplog.at_level(logging.WARNING):
         extract_surface(disk, resolution=16, method="plane")
-    assert "resolution=16 gives 0.0" in caplog.text and "resolution=" in caplog.text.split("keeps it as set")[0]
+        extract_surface(disk, resolution=16, method="plane")  # a second mesh on the same grid: not said again
+    said = re.findall(r"resolution=16 gives ([\d.]+)-wide cells.*; resolution=(\d+) or more keeps it as set",
+                      caplog.text)
+    assert len(said) == 1
+    cells, enough = float(said[0][0]), int(said[0][1])
+    assert 1.5 * cells * 16 / enough <= 0.04 < 1.5 * cells * 16 / (enough - 1)  # the least resolution that keeps it
     caplog.clear()
     with caplog.at_level(logging.WARNING):  # cells a third of the disk wide: the tube holds all of it
         result = extract_surface(disk, resolution=3, method="plane")

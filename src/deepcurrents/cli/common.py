@@ -23,17 +23,24 @@ from deepcurrents.eval.meshing import mesh_method
 log = logging.getLogger("deepcurrents")
 
 
+# the apps' log lines, bare, on stderr: their stdout is what they print (extract's and evaluate's JSON summary can be
+# piped to jq or json.load); a whole config of Hydra's job_logging group, so that another choice replaces it cleanly
+STDERR_LOGGING = {"version": 1, "formatters": {"simple": {"format": "%(message)s"}},
+                  "handlers": {"console": {"class": "logging.StreamHandler", "formatter": "simple",
+                                           "stream": "ext://sys.stderr"}},
+                  "root": {"level": "INFO", "handlers": ["console"]}, "disable_existing_loggers": False}
+
+
 def register_app(name: str, schema: type, doc: str | None = None) -> None:
     """Stores ``schema`` (a dataclass) as the primary config ``name`` in Hydra's ConfigStore; ``doc``
     heads ``--help``."""
     cs = ConfigStore.instance()
+    cs.store(group="hydra/job_logging", name="stderr", node=STDERR_LOGGING)
     cs.store(name=f"{name}_schema", node=schema)
     header = (doc or f"python -m deepcurrents.{name} ckpt_path=… [key=value …]").replace("${", "\\${")
     cs.store(name=name, node={
-        "defaults": [f"{name}_schema", "_self_", {"override hydra/job_logging": "stdout"}],
-        # log lines on stderr, so that the JSON summary an app prints on stdout can be piped (jq, json.load)
-        "hydra": {"job_logging": {"handlers": {"console": {"stream": "ext://sys.stderr"}}},
-                  "run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False},
+        "defaults": [f"{name}_schema", "_self_", {"override hydra/job_logging": "stderr"}],
+        "hydra": {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False},
                   "help": {"app_name": f"deepcurrents.{name}", "header": header,
                            "footer": "Settings are key=value overrides; --cfg job prints them."}},
     })

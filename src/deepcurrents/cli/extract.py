@@ -24,7 +24,7 @@ from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, ext
 from deepcurrents.eval.metrics import curve_length, mesh_summary, metrics_json
 from deepcurrents.eval.render import Camera, render_mesh
 from deepcurrents.models.current_module import input_mesh, metrics_in_input_units
-from deepcurrents.models.loading import area_in_file_units, file_frame, load_module, resolve_device, viewable_current
+from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.extract")
 
@@ -83,7 +83,7 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     current = viewable_current(module, cfg.ckpt_path, cfg.shape)
     out = output_dir(cfg.ckpt_path, cfg.out_dir, cfg.shape)  # before meshing: an unwritable folder is said at once
     if current.dim == 2:  # a 2D current's "surface" is a curve: its polylines, like the run's curve.npz
-        return extract_curve(module, current, cfg, out)
+        return extract_curve(module, current, cfg, out, fmt)
     settings = mesh_settings(module, cfg.shape, resolution=cfg.resolution, delta=cfg.delta,
                              boundary_tube=cfg.boundary_tube, close_boundary=cfg.close_boundary,
                              newton_steps=cfg.newton_steps, method=cfg.method, min_alignment=cfg.min_alignment,
@@ -111,12 +111,12 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     (out / f"{stem}.json").write_text(metrics_json(summary))
     if cfg.picture:
         render_mesh(mesh, loops, Camera(width=480, height=480), out / f"{stem}.png",
-                    title=f"area {area_in_file_units(module, mesh.area):.4g}, {len(mesh.faces)} faces")
+                    title=f"area {summary['mesh_area']:.4g}, {len(mesh.faces)} faces")  # as its JSON says
         summary["picture"] = str(out / f"{stem}.png")
     return summary
 
 
-def extract_curve(module, current, cfg: DictConfig, out: Path) -> dict:
+def extract_curve(module, current, cfg: DictConfig, out: Path, fmt: str = "ply") -> dict:
     """A 2D current's curve at ``cfg.resolution`` (the run's ``evaluation.curve`` settings otherwise):
     ``out/curve_r<resolution>.npz`` (one (K, 2) polyline per array) and its summary."""
     settings = {**dict(run_evaluation(module).get("curve") or {}), "resolution": int(cfg.resolution)}
@@ -124,7 +124,7 @@ def extract_curve(module, current, cfg: DictConfig, out: Path) -> dict:
     settings.update({k: cfg[k] for k in ("delta", "boundary_tube", "min_alignment") if cfg[k] is not None})
     if cfg.method not in (None, "auto"):  # phase | level_set, checked above
         settings["method"] = cfg.method
-    ignored = [k for k in SURFACE_ONLY if cfg[k] is not None] + (["format"] if cfg.format != "ply" else [])
+    ignored = [k for k in SURFACE_ONLY if cfg[k] is not None] + (["format"] if fmt != "ply" else [])
     if ignored:
         log.warning("%s: a 2D current's curve is written as curve_r%d.npz; %s apply to surfaces only and were not "
                     "used.", cfg.ckpt_path, int(cfg.resolution), ", ".join(ignored))

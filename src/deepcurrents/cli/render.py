@@ -36,7 +36,8 @@ from deepcurrents.eval.render import (
     save_image,
     save_mp4,
 )
-from deepcurrents.models.loading import area_in_file_units, load_module, resolve_device, viewable_current
+from deepcurrents.models.current_module import reported_mesh_area
+from deepcurrents.models.loading import load_module, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.render")
 
@@ -174,7 +175,7 @@ def render_checkpoint(cfg: DictConfig) -> list:
     log.info("volume render: %.1f s", time.perf_counter() - start)
     if cfg.mesh:
         result = extract_surface(current, **mesh_settings(module, cfg.shape, resolution=cfg.resolution))
-        title = f"area {area_in_file_units(module, result.mesh.area):.4g}"  # as the run's own mesh.png
+        title = f"area {reported_mesh_area(module, result.mesh.area):.4g}"  # as the run's own mesh.png
         if cfg.turntable:
             frames = [render_mesh(result.mesh, loops, cam) for cam in camera.turntable(cfg.frames)]
             written.append(save_gif(frames, out / f"{name}_mesh_turntable.gif", cfg.fps))

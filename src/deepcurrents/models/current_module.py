@@ -46,6 +46,14 @@ def input_frame(boundary: dict) -> tuple[float, np.ndarray] | None:
     return float(boundary.get("scale", 1.0)), np.asarray(boundary.get("offset", np.zeros(3)), np.float64)
 
 
+def reported_mesh_area(module, area: float) -> float:
+    """An area in the model's box as a run reports its ``mesh_area`` (metrics.json, the title of mesh.png): in a
+    normalised curve's units for a minimal surface, in the box for a reconstruction (whose file-unit area is
+    ``mesh_area_input_units``)."""
+    frame = input_frame((getattr(module, "hparams", None) or {}).get("boundary") or {})
+    return area if frame is None else area * float(frame[0]) ** 2
+
+
 # metrics that are lengths or areas, and their power of the scale
 _LENGTH_KEYS = {"mass_area": 2, "mass_area_stderr": 2, "mass_area_lower": 2, "mass_area_mc": 2,
                 "mass_area_mc_stderr": 2, "mass_area_sharpened": 2, "mass_area_sharpened_stderr": 2,
@@ -148,7 +156,7 @@ class CurrentModule(DeepCurrentsModule):
             frame = input_frame(self.hparams.boundary)
             # mesh.ply in the input's coordinates, its border on the user's curve
             export = input_mesh(result.mesh, frame) if frame is not None else None
-            title = f"{self.hparams.boundary.get('name', '')}: area {result.mesh.area * (frame or (1.0,))[0]**2:.4g}"
+            title = f"{self.hparams.boundary.get('name', '')}: area {reported_mesh_area(self, result.mesh.area):.4g}"
             metrics.update(self.write_mesh(out_dir, result, loops, title, export=export))
             metrics.update(self.sharpened_bound(result))
             if frame is not None:

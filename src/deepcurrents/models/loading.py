@@ -131,13 +131,6 @@ def file_frame(module) -> tuple[float, np.ndarray] | None:
     return input_frame((getattr(module, "hparams", None) or {}).get("boundary") or {})
 
 
-def area_in_file_units(module, area: float) -> float:
-    """An area in the model's box in the units of the files the run was given (``file_frame``): what the run's own
-    pictures and metrics.json report."""
-    frame = file_frame(module)
-    return area if frame is None else area * float(frame[0]) ** 2
-
-
 def article(name: str) -> str:
     """``name`` after its indefinite article (a CurrentModule, an AutodecoderModule)."""
     return f"{'an' if name[:1].upper() in 'AEIOU' else 'a'} {name}"

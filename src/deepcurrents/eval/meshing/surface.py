@@ -147,6 +147,10 @@ def _grid(bounds: np.ndarray, resolution: int, key: str = "resolution"
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), shape, voxel
 
 
+# (resolution key, resolution, cell width) already warned about: a family's interpolation meshes each step alike
+_WIDENED_SAID: set[tuple[str, int, float]] = set()
+
+
 @torch.no_grad()
 @reads_level_sets
 def extract_surface(
@@ -202,7 +206,8 @@ def extract_surface(
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
     tube = max(boundary_tube, 1.5 * voxel) if close_boundary else 0.0
     widened = tube > boundary_tube  # by the voxels: the border is cut and closed at this coarse a scale
-    if widened:
+    if widened and (resolution_key, resolution, round(voxel, 9)) not in _WIDENED_SAID:  # once, not per member
+        _WIDENED_SAID.add((resolution_key, resolution, round(voxel, 9)))
         enough = (f"; {resolution_key}={math.ceil(resolution * 1.5 * voxel / boundary_tube)} or more keeps it as set"
                   if boundary_tube > 0 else "")
         log.warning("%s=%d gives %.3g-wide cells, so the boundary tube is widened from %.3g to %.3g (1.5 cells): a "
