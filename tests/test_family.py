@@ -823,8 +823,9 @@ def test_a_family_mesh_with_faces_wound_backwards_keeps_its_vertices_and_its_one
 
 
 def test_an_apps_padding_reaches_a_family_members_meshing_box(trained):
-    """extract's padding= (render and evaluate take none) was dropped for family checkpoints (the box came from the run's own padding:
-    padding=0, 1 and unset gave bit-identical meshes); a padding of p makes the cube's side (1 + 2p) × the box's."""
+    """extract's padding= (render and evaluate take none) was dropped for family checkpoints (the box came from the
+    run's own padding: padding=0, 1 and unset gave bit-identical meshes); a padding of p makes the cube's side
+    (1 + 2p) × the box's."""
     from deepcurrents.cli.common import mesh_settings
     from deepcurrents.models.loading import load_module
 
