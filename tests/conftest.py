@@ -125,6 +125,9 @@ def run_command_in_process(module: str, args: Sequence[str], cwd: Path) -> Comma
     main = importlib.import_module(module).main
     root = logging.getLogger()
     handlers, level = root.handlers[:], root.level
+    # a logging config with disable_existing_loggers (hydra/job_logging=disabled) would silence later tests' caplog
+    disabled = {name: lg.disabled for name, lg in logging.root.manager.loggerDict.items()
+                if isinstance(lg, logging.Logger)}
     out, err = io.StringIO(), io.StringIO()
     argv, here = sys.argv, os.getcwd()
     code = 0
@@ -148,6 +151,9 @@ def run_command_in_process(module: str, args: Sequence[str], cwd: Path) -> Comma
             handler.close()
         root.handlers[:] = handlers
         root.setLevel(level)
+        for name, lg in logging.root.manager.loggerDict.items():
+            if isinstance(lg, logging.Logger):
+                lg.disabled = disabled.get(name, False)
     return CommandResult(code, out.getvalue(), err.getvalue())
 
 
