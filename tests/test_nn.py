@@ -409,7 +409,7 @@ def test_family_f_window_is_a_tanh_of_the_decoder_and_both_passes_agree(monkeypa
         assert _relative_error(a, b) <= 1e-10
     with pytest.raises(ConfigError, match=r"model\.net\.f_turns=0\.9 must be 0 \(no window\) or above 1"):
         family(0.9)
-    with pytest.raises(ConfigError, match=r"model\.net\.f_turns=wide must be non-negative"):
+    with pytest.raises(ConfigError, match=r"model\.net\.f_turns=wide must be a non-negative number"):
         family("wide")
 
 

@@ -574,10 +574,11 @@ def test_curve_tolerance_must_be_positive_before_any_file_is_read(tmp_path):
     from deepcurrents.errors import ConfigError
 
     for bad in (-1, 0, "wide"):
-        with pytest.raises(ConfigError, match=rf"^data\.curve_tolerance={bad} must be positive\.$"):
+        with pytest.raises(ConfigError, match=rf"^data\.curve_tolerance={bad} must be (a )?positive( number)?\.$"):
             ReconstructionDataModule(points=str(tmp_path / "missing.xyz"), curve=str(tmp_path / "missing.txt"),
                                      curve_tolerance=bad)
-        with pytest.raises(ConfigError, match=rf"^data\.near_sigma={bad} must be positive\.$"):  # the baseline's
+        # the baseline's noise
+        with pytest.raises(ConfigError, match=rf"^data\.near_sigma={bad} must be (a )?positive( number)?\.$"):
             ReconstructionDataModule(points=str(tmp_path / "missing.xyz"), curve=str(tmp_path / "missing.txt"),
                                      near_sigma=bad)
     cloud, rim = _dome_and_rim(tmp_path, 0.4)

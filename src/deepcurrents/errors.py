@@ -30,11 +30,12 @@ def positive_int(name: str, value: Any, minimum: int = 1) -> int:
 def number_at_least(name: str, value: Any, minimum: float = 0.0, strict: bool = False) -> float:
     """``value`` as a finite float ≥ ``minimum`` (> with ``strict``), or ConfigError naming the setting ``name``.
     A string or a boolean is refused in the same sentence (``not value >= 0`` would raise a raw TypeError)."""
-    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) \
-        and (value > minimum if strict else value >= minimum)
+    number = not isinstance(value, bool) and isinstance(value, (int, float))
+    ok = number and math.isfinite(value) and (value > minimum if strict else value >= minimum)
     if not ok:
-        if minimum == 0:
-            what = "positive" if strict else "non-negative"
+        if minimum == 0:  # a word is told it is not a number at all (lr=fast "must be positive" read oddly)
+            what = ("positive" if strict else "non-negative") if number else \
+                f"a {'positive' if strict else 'non-negative'} number"
         else:
             what = f"a finite number {'>' if strict else '≥'} {minimum:g}"
         raise ConfigError(f"{name}={value} must be {what}.")
