@@ -689,6 +689,10 @@ def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp
     assert report["sheet_flux_mean"] == pytest.approx(np.mean(flux)) and report["sheet_flux_min"] == min(flux)
     # the grid's corners (0, 0) and (1, 1) are the training shapes 0 and 2; (0, 1) and (1, 0) are not
     assert [it["training_shape"] for it in report["items"]] == [True, False, False, True]
+    # the apps' memory sentence names their own setting (it said evaluation.mesh.resolution, which they do not take)
+    with pytest.raises(ConfigError, match=r"^resolution=100000 asks for "):
+        interpolate(OmegaConf.structured(InterpolateConfig(ckpt_path=ckpt, resolution=100000, mode="latent", a=0,
+                                                           b=2, steps=2, out_dir=str(tmp_path / "big"))))
     report = interpolate(cfg(InterpolateConfig, mode="boundary", a=1, b=2, steps=3, out_dir=str(tmp_path / "b")))
     assert [it["t_boundary"] for it in report["items"]] == [0.0, 0.5, 1.0]
     assert [it["training_shape"] for it in report["items"]] == [True, False, False]  # code of 1: only Γ_1 is shape 1

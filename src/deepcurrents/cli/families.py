@@ -31,6 +31,7 @@ def load_for_app(cfg: DictConfig) -> AutodecoderModule:
     if cfg.get("resolution") is not None:
         resolution = positive_int("resolution", cfg.resolution, 8)
         module.evaluation["mesh"] = {**dict(module.evaluation.get("mesh", {})), "resolution": resolution}
+    module.MESH_RESOLUTION_KEY = "resolution"  # the app's own setting, in its memory and coarse-grid sentences
     return module
 
 
