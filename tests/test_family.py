@@ -693,6 +693,10 @@ def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp
     with pytest.raises(ConfigError, match=r"^resolution=100000 asks for "):
         interpolate(OmegaConf.structured(InterpolateConfig(ckpt_path=ckpt, resolution=100000, mode="latent", a=0,
                                                            b=2, steps=2, out_dir=str(tmp_path / "big"))))
+    from deepcurrents.cli.common import output_dir as app_folder
+
+    held = interpolate(cfg(InterpolateConfig, mode="latent", a=0, b=2, steps=2, hold="b"))  # the default folder
+    assert held["items"] and app_folder(ckpt, None).joinpath("interpolation_latent_0_2_hold_b").is_dir()
     report = interpolate(cfg(InterpolateConfig, mode="boundary", a=1, b=2, steps=3, out_dir=str(tmp_path / "b")))
     assert [it["t_boundary"] for it in report["items"]] == [0.0, 0.5, 1.0]
     assert [it["training_shape"] for it in report["items"]] == [True, False, False]  # code of 1: only Γ_1 is shape 1

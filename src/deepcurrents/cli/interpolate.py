@@ -9,7 +9,8 @@
   time, see ``geometry.correspondence``), with the latent code of ``hold`` held fixed;
 - ``grid``: rows interpolate the latent code, columns the boundary (``steps`` × ``steps``), as Fig. 6.
 
-Writes, into ``out_dir`` (default: ``<run>/checkpoints/last/interpolation_<mode>_<a>_<b>``, beside the checkpoint):
+Writes, into ``out_dir`` (default: ``<run>/checkpoints/last/interpolation_<mode>_<a>_<b>[_hold_b]``, beside the
+checkpoint):
 one mesh ``.ply`` and its boundary ``.obj`` per interpolant, ``interpolation.png`` (the grid of pictures)
 and ``interpolation.json`` with each interpolant's ``boundary_error`` (Hausdorff distance between the
 mesh's border and the prescribed Γ: the boundary is the handle, so this is what to watch) and its
@@ -70,7 +71,9 @@ def interpolate(cfg: DictConfig) -> dict[str, Any]:
     a = module.check_shape_index(cfg.a, "a")
     b = module.check_shape_index(cfg.b, "b")
     held = a if str(cfg.hold) == "a" else b
-    out_dir = app_out_dir(cfg, f"interpolation_{mode}_{a}_{b}")
+    # hold=b's default folder its own (hold=a and hold=b overwrote each other); a grid holds nothing
+    suffix = "_hold_b" if mode != "grid" and str(cfg.hold) == "b" else ""
+    out_dir = app_out_dir(cfg, f"interpolation_{mode}_{a}_{b}{suffix}")
     ts = np.linspace(0.0, 1.0, int(cfg.steps))
     za, zb = module.latent(a), module.latent(b)
     loops_a, loops_b = module.shape_loops(a), module.shape_loops(b)
