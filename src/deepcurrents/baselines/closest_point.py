@@ -95,12 +95,13 @@ class ClosestPointModule(DeepCurrentsModule):
             log.info("closest-point baseline: training for %.1f s (the wall time of %s)", self.time_budget_s,
                      self.wall_time_from)
         super().on_train_start()
-        if self.time_budget_s is None and self.trainer.is_global_zero:
+        if self.time_budget_s is None:
             steps = self.trainer.max_steps
             limit = f"trainer.max_steps={steps} steps" if steps is not None and steps >= 0 else "trainer.max_time"
-            log.warning("The closest-point baseline has no wall-time budget (neither model.wall_time_from nor "
-                        "model.time_budget_s is set), so it trains until %s (Table 1 gives it a DeepCurrents run's "
-                        "time: model.wall_time_from=RUN/metrics.json).", limit)
+            if self.trainer.is_global_zero:  # (the other ranks: no budget to compare with below either)
+                    log.warning("The closest-point baseline has no wall-time budget (neither model.wall_time_from nor "
+                            "model.time_budget_s is set), so it trains until %s (Table 1 gives it a DeepCurrents "
+                            "run's time: model.wall_time_from=RUN/metrics.json).", limit)
         elif self.train_seconds >= self.time_budget_s:
             # a resumed run whose budget is used (a finished table1 resumed with ckpt_path=auto): train nothing, as
             # a run resumed at its max_steps, and stop the clock so that train_seconds stays the checkpoint's.
