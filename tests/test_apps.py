@@ -343,6 +343,18 @@ def test_a_jobs_last_attempt_decides_whether_it_failed(tmp_path):
     assert [j["num"] for j in collect_jobs(tmp_path)] == ["0"]
 
 
+def fake_hydra_config(state) -> type:
+    """A stand-in for hydra.core.hydra_config.HydraConfig whose ``get()`` is ``state`` (a Hydra config node)."""
+    return type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
+
+
+def write_sweep_job(sweep: Path, num: str, overrides: str, name: str, text: str) -> None:
+    """A sweep's job folder as a finished or failed job leaves it: its .hydra/overrides.yaml and ``name``."""
+    (sweep / num / ".hydra").mkdir(parents=True)
+    (sweep / num / ".hydra" / "overrides.yaml").write_text(overrides)
+    (sweep / num / name).write_text(text)
+
+
 @pytest.mark.parametrize("sweeper, stops", [
     ("hydra._internal.core_plugins.basic_sweeper.BasicSweeper", True),
     ("hydra_plugins.hydra_optuna_sweeper.optuna_sweeper.OptunaSweeper", False),
@@ -373,9 +385,8 @@ def test_a_sweep_whose_jobs_all_failed_still_lists_them_where_the_table_would_be
     from deepcurrents.experiments.multirun import MultirunTable
 
     for num in ("0", "1"):
-        (tmp_path / num / ".hydra").mkdir(parents=True)
-        (tmp_path / num / ".hydra" / "overrides.yaml").write_text(f"- model.optim.lr=-{num}\n- preset=cpu\n")
-        (tmp_path / num / "error.txt").write_text(f"model.optim.lr=-{num} must be positive.")
+        write_sweep_job(tmp_path, num, f"- model.optim.lr=-{num}\n- preset=cpu\n", "error.txt",
+                        f"model.optim.lr=-{num} must be positive.")
     config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}, "sweeper": {"_target_": "optuna"}}})
     with pytest.raises(SystemExit):
         MultirunTable().on_multirun_end(config)
@@ -392,9 +403,7 @@ def test_a_sweep_of_suites_with_a_failed_job_says_which_jobs_ran_suites(tmp_path
     from deepcurrents.experiments.multirun import MultirunTable
 
     for num, name, text in (("0", "suite.json", "[]"), ("1", "error.txt", "data.index=1 is out of range.")):
-        (tmp_path / num / ".hydra").mkdir(parents=True)
-        (tmp_path / num / ".hydra" / "overrides.yaml").write_text("- experiment=hand_ablation\n- data.index=1\n")
-        (tmp_path / num / name).write_text(text)
+        write_sweep_job(tmp_path, num, "- experiment=hand_ablation\n- data.index=1\n", name, text)
     (tmp_path / "table.csv").write_text("run,ucd\nstale,1\n")  # an earlier sweep's, into the same folder
     config = OmegaConf.create({"hydra": {"sweep": {"dir": str(tmp_path)}, "sweeper": {"_target_": "basic"}}})
     with pytest.raises(SystemExit):
@@ -413,9 +422,7 @@ def test_a_failed_optuna_trial_scores_the_worst_value_for_the_direction(monkeypa
     import deepcurrents.cli.train as cli_train
 
     sweeper = OmegaConf.create({} if direction is None else {"direction": direction})
-    fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True),
-                                        "get": staticmethod(lambda: type("H", (), {"sweeper": sweeper})())})
-    monkeypatch.setattr(cli_train, "HydraConfig", fake)
+    monkeypatch.setattr(cli_train, "HydraConfig", fake_hydra_config(type("H", (), {"sweeper": sweeper})()))
     assert cli_train.worst_value() == worst
     assert cli_train.objective_value({"ucd": None}, "ucd") == worst  # an empty mesh's metric, written empty
 
@@ -471,9 +478,8 @@ def test_a_stopped_jobs_hint_says_how_its_kind_of_run_continues(monkeypatch, mod
     state.mode = RunMode[mode]
     import deepcurrents.experiments.multirun as multirun
 
-    fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
-    monkeypatch.setattr(runner, "HydraConfig", fake)
-    monkeypatch.setattr(multirun, "HydraConfig", fake)
+    monkeypatch.setattr(runner, "HydraConfig", fake_hydra_config(state))
+    monkeypatch.setattr(multirun, "HydraConfig", fake_hydra_config(state))
     assert runner.continue_hint(Path("/runs/job")).startswith(said)
 
 
@@ -491,8 +497,7 @@ def test_a_local_multirun_refuses_a_ddp_trainer(monkeypatch, launcher, trainer, 
     import deepcurrents.cli.train as cli_train
 
     state = OmegaConf.create({"launcher": {"_target_": launcher}})
-    fake = type("FakeHydraConfig", (), {"initialized": staticmethod(lambda: True), "get": staticmethod(lambda: state)})
-    monkeypatch.setattr(cli_train, "HydraConfig", fake)
+    monkeypatch.setattr(cli_train, "HydraConfig", fake_hydra_config(state))
     cfg = compose_cfg(["experiment=minimal_trefoil", *trainer])
     if refused:
         with pytest.raises(ConfigError, match=r"^trainer\.devices=2 with trainer\.num_nodes=1 \(strategy \w+: DDP\) "

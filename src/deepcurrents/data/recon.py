@@ -41,6 +41,7 @@ def first_nonfinite_row(rows: np.ndarray) -> int:
     """The index of the first row (point) of ``rows`` (N, d) that holds a NaN or an infinity, for a refusal."""
     return int(np.flatnonzero(~np.isfinite(rows).all(1))[0])
 
+
 def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """A triangle mesh from a file trimesh reads, cleaned for reconstruction: repeated triangles dropped, largest
     connected component (with a warning when there are several), its winding made consistent, no unreferenced

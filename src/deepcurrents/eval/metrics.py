@@ -36,6 +36,7 @@ def metrics_json(value: Any) -> str:
         return v
     return json.dumps(clean(value), indent=2, allow_nan=False)
 
+
 def jump(dim: int) -> float:
     """The jump of the (solid) angle across the optimal surface: 4π in 3D, 2π in 2D."""
     return 4.0 * math.pi if dim == 3 else 2.0 * math.pi

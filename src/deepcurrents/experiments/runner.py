@@ -476,13 +476,13 @@ def check_suite_variants(cfg: DictConfig, inherited: list[str],
     own = {str(m.name): _leaves(hydra.compose(config_name="train", overrides=member_overrides(m, [])))
            for m in cfg.suite.runs}
     given = {name: _leaves(member_cfg) for name, (_, member_cfg) in members.items()}
+    set_by_members = {o.lstrip("+~").split("=", 1)[0] for m in cfg.suite.runs for o in m.overrides}
     names = list(given)
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             if given[a] != given[b] or own[a] == own[b]:
                 continue
             keys = sorted(k for k in own[a].keys() | own[b].keys() if own[a].get(k) != own[b].get(k))
-            set_by_members = {o.lstrip("+~").split("=", 1)[0] for m in cfg.suite.runs for o in m.overrides}
             culprits = [o for o in inherited if (key := o.lstrip("+~").split("=", 1)[0]) in set_by_members
                         or any(k == key or k.startswith(key + ".") for k in keys)] or inherited
             shown = ", ".join(f"{k} ({a}: {own[a].get(k, 'unset')}, {b}: {own[b].get(k, 'unset')})" for k in keys[:3])
