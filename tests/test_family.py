@@ -661,6 +661,24 @@ def brute_force_border_hausdorff(mesh: trimesh.Trimesh, loops: list[np.ndarray],
     return float(max(d.max(), e.max()))
 
 
+def test_family_apps_mesh_in_the_cube_their_padding_asks_for(trained, tmp_path):
+    from deepcurrents.cli.families import load_for_app
+    from deepcurrents.cli.interpolate import InterpolateConfig
+
+    out, _, _ = trained
+    ckpt = str(out / "checkpoints" / "last.ckpt")
+    for padding in (0.0, 0.5):
+        module = load_for_app(OmegaConf.structured(InterpolateConfig(ckpt_path=ckpt, padding=padding)))
+        lo, hi = (b.numpy().astype(np.float64) for b in module.train_bounds[1].detach().cpu())
+        half = 0.5 * (1 + 2 * padding) * (hi - lo).max() + 1e-3  # (1 + 2 · padding) × the largest extent, by hand
+        centre = 0.5 * (lo + hi)
+        np.testing.assert_allclose(module.meshing_bounds([1]), [np.maximum(centre - half, -1),
+                                                                np.minimum(centre + half, 1)])
+    for bad in (1.5, -0.1):
+        with pytest.raises(ConfigError, match=rf"^padding={bad} must be in \[0, 1\]\.$"):
+            load_for_app(OmegaConf.structured(InterpolateConfig(ckpt_path=ckpt, padding=bad)))
+
+
 @pytest.mark.slow
 def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp_path):
     from deepcurrents.cli.generate import GenerateConfig, generate

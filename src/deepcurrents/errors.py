@@ -42,6 +42,15 @@ def number_at_least(name: str, value: Any, minimum: float = 0.0, strict: bool = 
     return float(value)
 
 
+def number_between(name: str, value: Any, low: float, high: float) -> float:
+    """``value`` as a float in [``low``, ``high``], or ConfigError naming the setting ``name`` (a string or a boolean
+    in the same sentence)."""
+    ok = not isinstance(value, bool) and isinstance(value, (int, float)) and low <= value <= high
+    if not ok:
+        raise ConfigError(f"{name}={value} must be in [{low:g}, {high:g}].")
+    return float(value)
+
+
 def share(name: str, value: Any, why: str = "") -> float:
     """``value`` as a float in (0, 1] (a share of a batch), or ConfigError naming the setting ``name``; ``why``
     is added to the sentence. A string or a boolean is refused in the same sentence."""

@@ -19,7 +19,7 @@ import numpy as np
 from omegaconf import MISSING, DictConfig
 
 from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app, run_evaluation
-from deepcurrents.errors import ConfigError, number_at_least, positive_int
+from deepcurrents.errors import ConfigError, number_at_least, number_between, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import curve_length, mesh_summary, metrics_json
 from deepcurrents.eval.render import Camera, render_mesh
@@ -73,9 +73,8 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
         raise ConfigError(f"format='{cfg.format}' must be one of {', '.join(FORMATS)}.")
     for key, lo, hi in (("min_alignment", -1.0, 1.0), ("min_component", 0.0, 1.0), ("padding", 0.0, 1.0),
                         ("level_blend", 0.0, float("inf"))):
-        value = cfg.get(key)
-        if value is not None and not lo <= value <= hi:
-            raise ConfigError(f"{key}={value} must be in [{lo:g}, {hi:g}].")
+        if cfg.get(key) is not None:
+            number_between(key, cfg.get(key), lo, hi)
     if cfg.method is not None and cfg.method not in MESH_METHOD_CHOICES:
         raise ConfigError(f"method='{cfg.method}' must be one of {', '.join(MESH_METHOD_CHOICES)}.")
     device = resolve_device(cfg.device)

@@ -11,7 +11,7 @@ import torch
 from omegaconf import DictConfig
 
 from deepcurrents.cli.common import not_a_command, output_dir
-from deepcurrents.errors import positive_int
+from deepcurrents.errors import number_between, positive_int
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary, metrics_json, sheet_flux
 from deepcurrents.eval.plots import plot_mesh_grid
 from deepcurrents.geometry.curves import write_curve_file
@@ -26,11 +26,18 @@ def app_out_dir(cfg: DictConfig, name: str) -> Path:
 
 
 def load_for_app(cfg: DictConfig) -> AutodecoderModule:
-    """The family model of ``cfg.ckpt_path`` on ``cfg.device``, with ``cfg.resolution`` applied."""
+    """The family model of ``cfg.ckpt_path`` on ``cfg.device``, with ``cfg.resolution`` and ``cfg.padding`` (the
+    meshed cube's margin, ``AutodecoderModule.meshing_bounds``) applied to its evaluation settings."""
+    padding = cfg.get("padding")
+    if padding is not None:  # before loading: a mistyped setting is said at once
+        padding = number_between("padding", padding, 0.0, 1.0)
     module = load_module(cfg.ckpt_path, map_location=resolve_device(str(cfg.device)), expected=AutodecoderModule)
     if cfg.get("resolution") is not None:
         resolution = positive_int("resolution", cfg.resolution, 8)
         module.evaluation["mesh"] = {**dict(module.evaluation.get("mesh", {})), "resolution": resolution}
+    if padding is not None:
+        module.evaluation.pop("padding", None)  # where checkpoints before the one `evaluation` node kept it
+        module.evaluation["mesh"] = {**dict(module.evaluation.get("mesh", {})), "padding": padding}
     module.MESH_RESOLUTION_KEY = "resolution"  # the app's own setting, in its memory and coarse-grid sentences
     return module
 

@@ -44,6 +44,7 @@ class GenerateConfig:
     name: str | None = None  # output file stem (default <curve stem>_latent<k>)
     out_dir: str | None = None
     resolution: int | None = None
+    padding: float | None = None  # the meshed cube's margin, in [0, 1] (default: the run's evaluation.mesh.padding)
     device: str = "auto"
 
 

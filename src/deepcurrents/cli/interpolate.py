@@ -51,6 +51,7 @@ class InterpolateConfig:
     hold: str = "a"  # which shape's boundary (latent mode) or latent code (boundary mode) is held fixed
     out_dir: str | None = None
     resolution: int | None = None  # marching-cubes resolution (default: the run's evaluation.mesh)
+    padding: float | None = None  # the meshed cube's margin, in [0, 1] (default: the run's evaluation.mesh.padding)
     mass_samples: int = 65536  # uniform samples for each interpolant's mass_area and crispness (0: skip)
     device: str = "auto"  # auto | cpu | cuda
 
