@@ -359,7 +359,7 @@ def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> 
     sharp = cfg.evaluation.sharpened
     out["sharpened_area"], out["sharpened_stderr"] = sharpened_mass_estimate(
         current, mesh_sampler(result.mesh), result.level + math.pi, kappa=float(sharp.kappa),
-        num_samples=int(sharp.samples))
+        num_samples=int(sharp.samples), tube_radius=float(cfg.evaluation.get("mass_tube_radius") or 0.0))
     out["sharpened_seconds"] = time.perf_counter() - t
     for key in ("mass_2^20_seconds", "mass_early_seconds", "mesh_seconds", "sharpened_seconds"):
         out[key.replace("seconds", "per_train")] = out[key] / train
@@ -473,8 +473,9 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
             with torch.no_grad():
                 result = extract_surface(current, **opts)
             # the same current concentrated onto its meshed level (eval.certificate): again an upper bound
-            sharp, sharp_err = sharpened_mass_estimate(current, mesh_sampler(result.mesh), result.level + math.pi,
-                                                       kappa=16.0, num_samples=1 << 18)
+            sharp, sharp_err = sharpened_mass_estimate(
+                current, mesh_sampler(result.mesh), result.level + math.pi, kappa=16.0, num_samples=1 << 18,
+                tube_radius=float(cfg.evaluation.get("mass_tube_radius") or 0.0))
             areas.update(mesh_area=float(result.mesh.area), mesh_seconds=time.perf_counter() - t,
                          mass_area_sharpened=sharp, mass_area_sharpened_stderr=sharp_err)
         if frame is not None:  # trained scaled into the safe box (data.normalize=auto): the curve's units, as

@@ -38,23 +38,26 @@ def test_mesh_cells_are_a_distribution_on_the_mesh():
     assert p[:, :, 4].sum() == pytest.approx(1.0)      # z = 0.01 lies in the cells 4 of 8 along z
 
 
-def test_kappa_zero_is_the_plain_mass_bound(untrained):
+@pytest.mark.parametrize("tube_radius", [0.0, 0.05])
+def test_kappa_zero_is_the_plain_mass_bound(untrained, tube_radius):
+    """With a tube about Γ integrated apart (by samples ∝ 1/r) the estimate is the same, each point counted once."""
     current, result = untrained
     plain, plain_err = mass_estimate(current, 1 << 16, seed=3)
     plain_area = mass_to_area(plain, 3, current.alpha_scale)
     bound, err = sharpened_mass_estimate(current, mesh_sampler(result.mesh, seed=4), result.level + math.pi,
-                                         kappa=0.0, num_samples=1 << 16)
+                                         kappa=0.0, num_samples=1 << 16, tube_radius=tube_radius, seed=4)
     both = math.hypot(err, mass_to_area(plain_err, 3, current.alpha_scale))
     assert abs(bound - plain_area) < 4 * both
     assert plain_area > 2.0 * math.pi * R**2             # α alone is far from the minimal current
 
 
-def test_concentrated_on_the_disk_it_certifies_the_disk_area(untrained):
+@pytest.mark.parametrize("tube_radius", [0.0, 0.05])
+def test_concentrated_on_the_disk_it_certifies_the_disk_area(untrained, tube_radius):
     current, result = untrained
     disk = math.pi * R**2
     assert result.mesh.area == pytest.approx(disk, rel=0.02)
     bound, err = sharpened_mass_estimate(current, mesh_sampler(result.mesh, seed=5), result.level + math.pi,
-                                         kappa=30.0, num_samples=1 << 16)
+                                         kappa=30.0, num_samples=1 << 16, tube_radius=tube_radius, seed=5)
     assert err < 0.02 * disk
     assert bound > disk - 4 * err                        # an upper bound of the minimal area …
     assert bound < disk * 1.03 + 4 * err                 # … and, concentrated on the disk, a tight one
