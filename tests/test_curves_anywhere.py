@@ -272,6 +272,24 @@ def test_millimetre_circle_gives_the_disk_in_millimetres(tmp_path):
     assert reported_mesh_area(module, summary["mesh_area_normalized"]) == pytest.approx(summary["mesh_area"])
 
 
+def test_a_curve_at_map_coordinates_gets_a_mesh_file_on_it(tmp_path):
+    """A circle of radius 10 at UTM-sized coordinates (5.4e6): mesh.ply must lie on it as metrics.json says. A
+    float32 PLY (trimesh's) rounded y to 0.5 units: its border 0.5 off the curve, its area 0.6 % too large."""
+    t = 2 * np.pi * np.arange(64) / 64
+    loop = np.stack([450000.0 + 10 * np.cos(t), 5400000.0 + 10 * np.sin(t), np.full_like(t, 100.0)], -1)
+    path = tmp_path / "utm.txt"
+    np.savetxt(path, loop, fmt="%.9f")
+    overrides = ["experiment=minimal_curve", f"data.curve={path}", "trainer.max_steps=20",
+                 "evaluation.mesh.resolution=32", "evaluation.sharpened.samples=0"]
+    metrics = train(compose_cfg(overrides + SMALL), out_dir=tmp_path / "run")
+    mesh = trimesh.load(tmp_path / "run" / "mesh.ply", process=False)
+    assert np.asarray(mesh.vertices).dtype == np.float64
+    assert mesh.area == pytest.approx(metrics["mesh_area"], rel=1e-9)
+    # on Γ up to the model's float32 Γ in the box (6e-8 of its 0.5 half-width, times the scale of about 20)
+    assert boundary_error(mesh, [loop]) < 1e-4
+    assert metrics["mesh_area"] == pytest.approx(math.pi * 100, rel=0.02)  # the planar disk
+
+
 @pytest.mark.slow
 def test_enneper_at_097_gets_the_exact_area(tmp_path):
     """Enneper's curve of parameter radius 0.8 reaches 0.97 from the centre of the box: left there, the wall

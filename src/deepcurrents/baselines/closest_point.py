@@ -17,6 +17,7 @@ import torch
 
 from deepcurrents.errors import ConfigError, number_at_least
 from deepcurrents.eval.metrics import sample_surface
+from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.models.reconstruction import TargetGeometry
 from deepcurrents.nn import FieldMLP, FourierFeatures
@@ -167,5 +168,5 @@ class ClosestPointModule(DeepCurrentsModule):
         if frame is not None:  # a normalised target: the UCD in the file's units as well, as ReconstructionModule
             metrics["ucd_input_units"] = ucd * frame[0]
             metrics["ucd_reverse_input_units"] = reverse * frame[0]
-        trimesh.PointCloud(TargetGeometry.to_input(self, pred)).export(out_dir / "points.ply")
+        write_mesh(trimesh.PointCloud(TargetGeometry.to_input(self, pred)), out_dir / "points.ply")
         return self.write_metrics(out_dir, metrics)

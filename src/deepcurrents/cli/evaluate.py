@@ -36,7 +36,7 @@ from deepcurrents.eval.metrics import (
     metrics_json,
     unidirectional_chamfer,
 )
-from deepcurrents.geometry.meshes import read_mesh
+from deepcurrents.geometry.meshes import read_mesh, write_mesh
 from deepcurrents.models.current_module import input_mesh
 from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
 
@@ -89,7 +89,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
             mesh = given
         else:
             mesh = extract_surface(current, **mesh_settings(module, cfg.shape, resolution=cfg.resolution)).mesh
-            (mesh if frame is None else input_mesh(mesh, frame)).export(out / "mesh.ply")
+            write_mesh(mesh if frame is None else input_mesh(mesh, frame), out / "mesh.ply")
     # the run's own estimate (its sample count, early stop, refinement near Γ and its mesh, tube about Γ), or exactly
     # mass_samples
     settings = mass_estimate_settings(evaluation, mesh)

@@ -23,6 +23,7 @@ from deepcurrents.errors import ConfigError, number_at_least, number_between, po
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import curve_length, mesh_summary, metrics_json
 from deepcurrents.eval.render import Camera, render_mesh
+from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.models.current_module import input_mesh, metrics_in_input_units
 from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
 
@@ -100,13 +101,13 @@ def extract_checkpoint(cfg: DictConfig) -> dict:
     # as the run's own mesh.ply
     frame = file_frame(module)
     if frame is not None:
-        input_mesh(mesh, frame).export(path)
+        write_mesh(input_mesh(mesh, frame), path)
         if getattr(module, "target_scale", None) is not None:  # a reconstruction's keys, as in its metrics.json
             summary["mesh_area_input_units"] = summary["mesh_area"] * frame[0] ** 2
         else:  # a minimal surface's: the plain keys in the curve's units, the model's as <key>_normalized
             summary = metrics_in_input_units(summary, *frame)
     else:
-        mesh.export(path)
+        write_mesh(mesh, path)
     (out / f"{stem}.json").write_text(metrics_json(summary))
     if cfg.picture:
         render_mesh(mesh, loops, Camera(width=480, height=480), out / f"{stem}.png",

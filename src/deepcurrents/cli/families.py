@@ -15,6 +15,7 @@ from deepcurrents.errors import number_between, positive_int
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area, mesh_summary, metrics_json, sheet_flux
 from deepcurrents.eval.plots import plot_mesh_grid
 from deepcurrents.geometry.curves import write_curve_file
+from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.models.autodecoder import AutodecoderModule
 from deepcurrents.models.loading import load_module, resolve_device
 
@@ -54,7 +55,7 @@ def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.
     member = module.member(z, loops)
     result = module.mesh_member(member, module.meshing_bounds(shapes, loops))
     mesh = result.mesh
-    mesh.export(out_dir / f"{stem}.ply")
+    write_mesh(mesh, out_dir / f"{stem}.ply")
     write_curve_file(out_dir / f"{stem}_boundary.obj", loops)
     summary = mesh_summary(result, loops)
     summary.pop("mesh_level")

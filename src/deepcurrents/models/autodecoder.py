@@ -30,6 +30,7 @@ from deepcurrents.errors import ConfigError, UserInputError, number_at_least, po
 from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import jump, mesh_summary, unidirectional_chamfer
 from deepcurrents.eval.plots import plot_mesh_pairs
+from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.losses import current_loss, surface_loss, surface_values, winding_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
@@ -429,7 +430,7 @@ class AutodecoderModule(DeepCurrentsModule):
         sheets), boundary adherence, areas. → (row, mesh)."""
         result = self.mesh_member(self.member(z, loops), bounds)
         mesh = result.mesh
-        mesh.export(path)
+        write_mesh(mesh, path)
         empty = len(mesh.faces) == 0
         summary = mesh_summary(result, loops)
         row = {

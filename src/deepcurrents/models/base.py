@@ -18,6 +18,7 @@ from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least
 from deepcurrents.eval.meshing import grid_shape
 from deepcurrents.eval.metrics import mesh_summary, metrics_json
 from deepcurrents.eval.plots import MeshView, plot_mesh
+from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.models.checkpointing import kept_checkpoint
 from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
 
@@ -220,6 +221,6 @@ class DeepCurrentsModule(L.LightningModule):
         in the input's coordinates). → its summary (``eval.metrics.mesh_summary``)."""
         out_dir = Path(out_dir)
         mesh = getattr(result, "mesh", result)
-        (export if export is not None else mesh).export(out_dir / "mesh.ply")
+        write_mesh(export if export is not None else mesh, out_dir / "mesh.ply")
         plot_mesh(mesh, loops, out_dir / "mesh.png", title=title, view=self.picture_view(loops))
         return mesh_summary(result, loops)

@@ -16,6 +16,7 @@ from deepcurrents.errors import number_at_least
 from deepcurrents.eval.meshing import flux_sign, region_of_interest
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface, unidirectional_chamfer
 from deepcurrents.eval.plots import MeshView, mesh_view, plot_mesh
+from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.losses import current_loss, surface_hinge
 from deepcurrents.models.current_module import CurrentModule
 
@@ -194,8 +195,8 @@ class ReconstructionModule(CurrentModule):
             metrics["ucd_reverse_input_units"] = metrics["ucd_reverse"] * scale
         if frame is not None:
             # the mesh and Γ in the input's coordinates, so that they compare with the user's file
-            trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
-                            process=False).export(out_dir / "mesh.ply")
+            write_mesh(trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
+                                       process=False), out_dir / "mesh.ply")
             metrics["mesh_area_input_units"] = float(mesh.area) * scale**2
         metrics["target"] = self.target_source
         target = TargetGeometry.mesh(self)
