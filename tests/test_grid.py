@@ -194,7 +194,9 @@ def test_grid_is_sized_like_the_network_and_rejects_bad_input(tmp_path):
                          (["model.admm.balance=-1"], r"^model\.admm\.balance=-1 must be non-negative"),
                          (["model.admm.min_iterations=-3"], r"^model\.admm\.min_iterations=-3 must be an integer"),
                          # torch's allocator error inside Hydra's before (1 TB in one allocation)
-                         (["model.grid.resolution=5000"], r"^model\.grid\.resolution=5000 asks for about .* GiB")]:
+                         (["model.grid.resolution=5000"], r"^model\.grid\.resolution=5000 asks for about .* GiB"),
+                         # Lightning's "remove Trainer(gradient_clip_val=0.1)" before, a setting nobody typed
+                         (["recipe=sharp"], r"^trainer\.gradient_clip_val=0\.1 \(recipe=sharp sets it\) does not")]:
         overrides = bad if bad[0].startswith("experiment") else ["experiment=minimal_grid", *bad]
         with pytest.raises(ConfigError, match=message) as info:
             train(compose_cfg([*overrides, *TINY]), out_dir=tmp_path)

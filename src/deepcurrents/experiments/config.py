@@ -151,6 +151,12 @@ def validate_config(cfg: DictConfig) -> None:
     curve_method = OmegaConf.select(cfg, "evaluation.curve.method")
     if curve_method is not None and curve_method not in CURVE_METHODS:
         raise ConfigError(f"evaluation.curve.method={curve_method!r} must be one of {', '.join(CURVE_METHODS)}.")
+    clip = OmegaConf.select(cfg, "trainer.gradient_clip_val")
+    if clip and str(OmegaConf.select(cfg, "model._target_", default="")).endswith(".GridModule"):
+        # else Lightning's "remove Trainer(gradient_clip_val=0.1)", a setting the user never typed
+        raise ConfigError(f"trainer.gradient_clip_val={clip} (recipe=sharp sets it) does not apply to the grid method "
+                          "(model=grid): its ADMM takes no gradient steps; drop recipe=sharp, or set "
+                          "trainer.gradient_clip_val=null.")
     if (OmegaConf.select(cfg, "model.mass_weight") or 0) > 0 and OmegaConf.select(cfg, "data.sampling.kind") == "near":
         # the near samples' importance weights are folded into the metric, so E|ω| would not be the mass
         raise ConfigError("model.mass_weight needs uniform ambient samples; data.sampling.kind=near weights "
