@@ -578,3 +578,31 @@ def test_grid_shape_counts_nodes_and_refuses_a_grid_larger_than_memory(monkeypat
     assert "\n" not in str(info.value)
     monkeypatch.setattr(device, "available_memory", lambda: None)
     assert surface.grid_shape(bounds, 400)[0] == (401, 201, 101)
+
+
+def test_a_mesh_left_with_a_hole_is_said(monkeypatch, caplog):
+    """A mesh whose border was closed onto Γ but keeps another border (a hole: a sheet thinner than the cells
+    between two nodes) is said, with a finer resolution; a closed disk is not."""
+    import logging
+
+    from test_render import AnalyticDisk
+
+    from deepcurrents.eval.meshing import surface
+
+    monkeypatch.setitem(METHODS, "plane", PlaneMethod)
+    disk = AnalyticDisk(radius=0.5, normal=tuple(PlaneMethod.normal.double().numpy()))
+    with caplog.at_level(logging.WARNING):
+        extract_surface(disk, resolution=40, method="plane")
+    assert "hole" not in caplog.text
+    # an annulus 0.2 < r < 0.5 about the circle r = 0.5: its inner border is 0.3 from Γ
+    n = 64
+    t = 2 * np.pi * np.arange(n) / n
+    ring = lambda r: np.stack([r * np.cos(t), r * np.sin(t), 0 * t], -1)  # noqa: E731
+    i = np.arange(n)
+    j = (i + 1) % n
+    faces = np.concatenate([np.stack([i, j, n + j], 1), np.stack([i, n + j, n + i], 1)])
+    annulus = trimesh.Trimesh(np.concatenate([ring(0.2), ring(0.5)]), faces, process=False)
+    with caplog.at_level(logging.WARNING):
+        surface._say_open_border(annulus, [ring(0.5)], 0.04, 0.03, "resolution", 64)
+    assert "The mesh has a border up to 0.3 from Γ (64 of its 128 border edges" in caplog.text
+    assert "resolution=96 or more" in caplog.text

@@ -1,4 +1,4 @@
-"""A sharper certified area bound: the trained current, concentrated onto its meshed level of phase.
+"""A sharper area bound: the trained current, concentrated onto its meshed level of phase.
 
 The phase φ = f/(2s) + Ω_Γ/2 (s = alpha_scale, ``eval.meshing.phase``) has ∇φ = ω/(2s) and turns once (by 2π)
 across the surface, so ω = 2s∇φ is the gradient of a circle-valued map, and by the coarea formula its mass is
