@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -35,6 +36,9 @@ from deepcurrents.baselines.grid_solver import (
 )
 from deepcurrents.geometry import biot_savart
 from deepcurrents.geometry.curves import enneper, enneper_area, hopf_link
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_args import check_range  # noqa: E402  (a sibling module, not a package)
 
 ALPHA_SCALE = 1e-3
 
@@ -66,6 +70,12 @@ def main() -> None:
     parser.add_argument("--curve", default="enneper", choices=["enneper", "hopf"],
                         help="hopf (the paper's Hopf link) has no exact area: its ratio is to the last extent's area")
     args = parser.parse_args()
+    check_range(parser, "--extents", args.extents, 0.0, 1.0, above=True, below=True,
+                why="the curve's largest |coordinate|, inside the box [-1, 1]³")
+    check_range(parser, "--cells", args.cells, 1)
+    check_range(parser, "--iterations", args.iterations, 1)
+    check_range(parser, "--tol", args.tol, 0.0, above=True)
+    check_range(parser, "--vertices", args.vertices, 3)  # a loop needs three vertices
     base = enneper(args.vertices, 0.8) if args.curve == "enneper" else hopf_link(args.vertices)
     base_extent = max(float(np.abs(lp).max()) for lp in base)
     reference = None

@@ -23,6 +23,7 @@ import json
 import math
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -33,6 +34,9 @@ from deepcurrents.geometry import biot_savart, circle, solid_angle
 from deepcurrents.geometry.curves import enneper
 from deepcurrents.geometry.polyline import resample_loop
 from deepcurrents.nn import NeuralCurrent
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_args import check_range  # noqa: E402  (a sibling module, not a package)
 
 BATCH = 4096
 
@@ -177,6 +181,10 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--max-pairs", type=float, default=4e7, help="point–segment pairs timed per call at most")
     args = parser.parse_args()
+    check_range(parser, "--vertices", args.vertices, 3)  # a loop needs three vertices
+    check_range(parser, "--resampled", args.resampled, 3)
+    check_range(parser, "--repeats", args.repeats, 1)
+    check_range(parser, "--max-pairs", args.max_pairs, 1)
     step = network_step_seconds(args.repeats)
     print(f"network step (preset=cpu sizes, {BATCH} points, α excluded): {step * 1e3:.1f} ms", flush=True)
     rows = alpha_times(args.vertices, args.repeats, args.max_pairs)

@@ -12,7 +12,9 @@ comparable. ``--mass-refine 1`` evaluates with the plain mass estimate (``evalua
 ``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``), ``--mass-refine-mesh 0|1`` without or
 with the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it), ``--mass-tube-radius 0``
 without the tube about Γ (``evaluation.mass_tube_radius``).
-``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
+A 2D run (``experiment=minimal_2d``) reports ``mass_length`` and ``curve_length``; the grid method's checkpoints are
+refused (no network to time). ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained
+200 steps.
 """
 
 from __future__ import annotations
@@ -20,17 +22,30 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import tempfile
 import time
+from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
 
 import deepcurrents
+from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.experiments.runner import build
 from deepcurrents.losses import current_loss
+from deepcurrents.models.base import CHECKPOINT_KEY
 from deepcurrents.models.callbacks import MediaCallback
-from deepcurrents.models.loading import load_module, read_checkpoint
+from deepcurrents.models.current_module import CurrentModule
+from deepcurrents.models.loading import CheckpointError, load_module, module_class, read_checkpoint, run_kind
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_args import check_range  # noqa: E402  (a sibling module, not a package)
+
+# the final evaluation's numbers reported beside the seconds, by the run's dimension
+METRIC_KEYS = {3: ("mass_samples", "mass_evaluations", "mass_area", "mass_area_stderr", "mesh_area",
+                   "mass_area_sharpened"),
+               2: ("mass_samples", "mass_evaluations", "mass_length", "mass_length_stderr", "curve_length")}
 
 
 def step_seconds(cfg, steps: int = 30, warm: int = 5) -> float:
@@ -64,8 +79,24 @@ def main() -> None:
     ap.add_argument("--mass-tube-radius", type=float, default=None,
                     help="evaluation.mass_tube_radius for this evaluation (default: the run's; 0 = no tube)")
     args = ap.parse_args()
+    check_range(ap, "--threads", args.threads, 1)
+    check_range(ap, "--mass-refine", args.mass_refine, 1)  # as train.py checks evaluation.mass_refine
+    check_range(ap, "--mass-rel-stderr", args.mass_rel_stderr, 0.0)
+    check_range(ap, "--mass-tube-radius", args.mass_tube_radius, 0.0)
     torch.set_num_threads(args.threads)
-    module = load_module(args.ckpt)
+    # a missing or unreadable checkpoint, a model without the network's final evaluation (the grid method's, a
+    # family's) or a run whose curve file is gone: one sentence and status 2, as the apps show it
+    exit_on_user_error(measure, args)
+
+
+def measure(args: argparse.Namespace) -> None:
+    """Loads the checkpoint, times its final evaluation, render and training step, and prints the JSON line."""
+    cls = module_class(read_checkpoint(args.ckpt)[CHECKPOINT_KEY]["module"], args.ckpt)
+    if not issubclass(cls, CurrentModule):
+        raise CheckpointError(f"ckpt_path='{args.ckpt}' is {run_kind(cls)}, and this benchmark times a neural "
+                              "current's final evaluation and training step: give a minimal surface's checkpoint "
+                              "(experiment=minimal_curve, minimal_trefoil, minimal_2d, …).")
+    module = load_module(args.ckpt, expected=CurrentModule)
     if args.mass_refine is not None:
         module.evaluation["mass_refine"] = args.mass_refine
     if args.mass_refine_mesh is not None:
@@ -97,8 +128,7 @@ def main() -> None:
         "train_seconds": train,
         "evaluation_seconds": evaluation, "render_seconds": rendering,
         "evaluation_per_train": evaluation / train, "with_render_per_train": (evaluation + rendering) / train,
-        **{k: metrics.get(k) for k in ("mass_samples", "mass_evaluations", "mass_area", "mass_area_stderr",
-                                       "mesh_area", "mass_area_sharpened")},
+        **{k: metrics.get(k) for k in METRIC_KEYS[2 if OmegaConf.select(cfg, "data.dim") == 2 else 3]},
         "load": [load, os.getloadavg()[0]],
     }))
 

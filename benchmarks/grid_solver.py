@@ -15,6 +15,7 @@ import argparse
 import json
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -29,6 +30,9 @@ from deepcurrents.baselines.grid_solver import (
     grid_vertices,
 )
 from deepcurrents.geometry import biot_savart, trefoil
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_args import check_device, check_range  # noqa: E402  (a sibling module, not a package)
 
 
 def sync(device: torch.device) -> None:
@@ -81,9 +85,12 @@ def main() -> None:
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     args = parser.parse_args()
+    check_range(parser, "--resolutions", args.resolutions, 4)  # the grid method's own least (model.grid.resolution)
+    for flag, value in (("--iterations", args.iterations), ("--repeats", args.repeats), ("--threads", args.threads)):
+        check_range(parser, flag, value, 1)
+    device = check_device(parser, args.device)
     if args.threads:
         torch.set_num_threads(args.threads)
-    device = torch.device(args.device)
     rows = []
     for n in args.resolutions:
         alpha64, setup = corner_alpha(n, device, torch.float64)

@@ -40,6 +40,7 @@ import math
 import os
 import platform
 import re
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -49,8 +50,11 @@ import numpy as np
 import torch
 from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
+from hydra.errors import HydraException
+from omegaconf.errors import OmegaConfBaseException
 
 from deepcurrents.data.sampling import mesh_sampler
+from deepcurrents.errors import UserInputError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.metrics import mass_to_area
@@ -58,6 +62,9 @@ from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.experiments.runner import build, instantiate
 from deepcurrents.geometry import circle, load_boundary
 from deepcurrents.models.current_module import input_frame, metrics_in_input_units
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_args import check_range  # noqa: E402  (a sibling module, not a package)
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -71,6 +78,11 @@ RECIPES: dict[str, list[str]] = {
     "sharp": ["preset=cpu", "recipe=sharp"],
     "harm": ["preset=cpu", "recipe=harmonics"],
 }
+
+# the names of ``curves()``, in its order, for --help without writing the files (tests check that the two agree)
+CURVE_NAMES = ("circle05", "tilted_square", "ellipse", "enneper05", "catenoid", "trefoil", "tilted_circle04",
+               "enneper06", "catenoid045", "star", "square12", "small_circle", "enneper07", "catenoid06", "helicoid",
+               "tilted_catenoid")
 
 
 def polygon_area(points: np.ndarray) -> float:
@@ -198,7 +210,7 @@ def curves(tmp: Path) -> dict[str, tuple[str, float]]:
         (loop,) = load_boundary(str(path)).loops
         out[Path(name).stem] = (str(path), polygon_area(loop))
     out["enneper05"] = enneper_curve(tmp, 0.5)
-    # the catenoid through R = 0.5 at z = ±0.2: 1.2212, below the two disks' 2πR² = 1.571
+    # the catenoid through R = 0.5 at z = ±0.2: 1.2209, below the two disks' 2πR² = 1.571
     out["catenoid"] = catenoid_curve(tmp, 0.5, 0.2)
     # no closed form: the issue's reference, the grid method's mesh at a fine grid (≈ 0.737)
     out["trefoil"] = ("trefoil", 0.737)
@@ -260,8 +272,8 @@ def resolve_recipes(known: dict[str, list[str]], specs: list[str], names: list[s
     exits with one sentence if ``names`` asks for an unknown one. → {name: overrides}."""
     recipes = dict(known)
     for spec in specs:
-        name, _, overrides = spec.partition("=")
-        recipes[name] = re.split(r",(?![^\[]*\])", overrides)  # commas inside [a,b] stay
+        name, overrides = recipe_spec(spec)
+        recipes[name] = overrides
         if name not in names:
             names.append(name)
     unknown = [r for r in names if r not in recipes]
@@ -270,20 +282,71 @@ def resolve_recipes(known: dict[str, list[str]], specs: list[str], names: list[s
     return recipes
 
 
+def recipe_spec(spec: str) -> tuple[str, list[str]]:
+    """``--recipe NAME=OVERRIDE,OVERRIDE`` → (name, overrides); commas inside [a,b] stay. SystemExit in one sentence
+    for a spec without a name or without overrides (``noequals``, ``=x``, ``x=``)."""
+    name, sep, overrides = spec.partition("=")
+    parts = [o.strip() for o in re.split(r",(?![^\[]*\])", overrides) if o.strip()]
+    if not sep or not name.strip() or "," in name or not parts:
+        raise SystemExit(f"error: --recipe {spec!r} must be NAME=OVERRIDE,OVERRIDE (a name, '=', and Hydra "
+                         "overrides, e.g. lr3e3=preset=cpu,model.optim.lr=3e-3).")
+    return name.strip(), parts
+
+
+def recipe_arg(spec: str) -> str:
+    """argparse's check of ``--recipe`` (at parse time, as argparse's own errors): the spec, unchanged."""
+    try:
+        recipe_spec(spec)
+    except SystemExit as err:
+        raise argparse.ArgumentTypeError(str(err.code).removeprefix("error: --recipe ")) from None
+    return spec
+
+
+def one_line(err: BaseException) -> str:
+    """An error's message on one line: Hydra's several lines (a list of options, the search path, a link to its
+    grammar) folded into one sentence."""
+    text = str(err).split("Config search path:")[0]
+    text = re.sub(r"\s*See https://hydra\.cc\S*( for details)?", "", text).strip()
+    text = re.sub(r":[ \t]*\n\t", ": ", text)  # "Available options in 'recipe':\n\tfast\n\tsharp" → "…: fast, sharp"
+    text = re.sub(r"\n\t", ", ", text)
+    text = re.sub(r"(?<=[.:;])\s*\n\s*", " ", text)  # a line that ends a sentence: the next one follows it
+    text = re.sub(r"\s*\n\s*", "; ", text) or type(err).__name__
+    return text if text.endswith((".", "!", "?")) else text + "."
+
+
 def compose_cfg(overrides: list[str]):
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=str(ROOT / "conf"), version_base="1.3"):
         return compose(config_name="train", overrides=overrides)
 
 
-def train_recipe(overrides: list[str], seconds: float, num_copies: int, steps: int | None = None,
-                 part: str = "current", trainer: str = "cpu"):
-    """Trains one recipe for ``seconds`` of wall clock (or ``steps`` steps) on the ``trainer`` config (cpu, gpu),
-    copying ``part``'s weights. → (module, cfg, snapshot records)."""
+def run_cfg(overrides: list[str], seconds: float, steps: int | None = None, trainer: str = "cpu"):
+    """The run configuration train_recipe trains: ``overrides`` with the budget and the benchmark's settings,
+    composed and checked as train.py checks it (ConfigError, Hydra's errors)."""
     budget = [f"trainer.max_steps={steps}"] if steps else ["trainer.max_steps=-1", f"trainer.max_time={seconds}"]
     cfg = compose_cfg([*overrides, "logger=none", f"trainer={trainer}", *budget, "trainer.enable_progress_bar=false",
                        "trainer.enable_model_summary=false", "callbacks.model_checkpoint=null", "callbacks.media=null"])
     validate_config(cfg)
+    return cfg
+
+
+def check_runs(ap: argparse.ArgumentParser, runs: dict[str, list[str]], seconds: float, steps: int | None,
+               trainer: str) -> None:
+    """Every run (label → overrides) composed, checked and built as train_recipe will (the DataModule and module,
+    no training) before the first trains: a bad override or value ends the script in one sentence, instead of a
+    traceback after the runs before it have trained."""
+    for label, overrides in runs.items():
+        try:
+            build(run_cfg(overrides, seconds, steps, trainer))
+        except (UserInputError, HydraException, OmegaConfBaseException) as err:
+            ap.error(f"{label}: {one_line(err)}")
+
+
+def train_recipe(overrides: list[str], seconds: float, num_copies: int, steps: int | None = None,
+                 part: str = "current", trainer: str = "cpu"):
+    """Trains one recipe for ``seconds`` of wall clock (or ``steps`` steps) on the ``trainer`` config (cpu, gpu),
+    copying ``part``'s weights. → (module, cfg, snapshot records)."""
+    cfg = run_cfg(overrides, seconds, steps, trainer)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     L.seed_everything(int(cfg.seed), workers=True, verbose=False)
     datamodule, module = build(cfg)
@@ -323,6 +386,9 @@ def step_costs(recipes: dict[str, list[str]], curve: str, rounds: int = 8, steps
             if r:  # the first round warms up
                 times[name].append((time.perf_counter() - t) / steps)
     return {name: float(np.median(v)) for name, v in times.items()}
+
+
+EVAL_COST_RUN = ["experiment=minimal_trefoil", "data.curve_vertices=300"]  # --eval-cost's run, before the recipe's
 
 
 def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> dict[str, float]:
@@ -605,8 +671,7 @@ def check_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     for key, value, low in (("--seconds", args.seconds, 0.0), ("--mass-samples", args.mass_samples, 0),
                             ("--copies", args.copies, 0), ("--mesh-resolution", args.mesh_resolution, 3),
                             ("--steps", args.steps, 0), ("--threads", args.threads, 0)):
-        if value is not None and not value > low:
-            ap.error(f"{key} {value} must be greater than {low}.")
+        check_range(ap, key, value, low, above=True)
     if any(not t > 0 for t in args.threshold):
         ap.error(f"--threshold {args.threshold}: every threshold must be positive.")
     if args.trainer == "gpu" and not torch.cuda.is_available():
@@ -614,17 +679,19 @@ def check_args(ap: argparse.ArgumentParser, args: argparse.Namespace) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog=f"built-in curves (--curves, --heldout): {', '.join(CURVE_NAMES)}; benchmarks/"
+                                        f"README.md describes each. Recipes: {', '.join(RECIPES)}.")
     ap.add_argument("--seconds", type=float, default=180.0, help="training budget per recipe and curve")
     ap.add_argument("--steps", type=int, default=None,
                     help="a step budget instead (quality per step does not depend on the machine's load)")
     ap.add_argument("--curves", nargs="*", default=["circle05", "ellipse", "tilted_square"],
-                    help="curves used for tuning (`--curves` alone: none, every curve from --heldout): names of "
-                         "the curves above, or your own as PATH=AREA (a curve file and its exact minimal area)")
+                    help="curves used for tuning (`--curves` alone: none, every curve from --heldout): built-in "
+                         "names (listed below), or your own as PATH=AREA (a curve file and its exact minimal area)")
     ap.add_argument("--heldout", nargs="*", default=[],
                     help="curves never used for tuning (reported apart); names or PATH=AREA as for --curves")
     ap.add_argument("--recipes", nargs="+", default=["paper", "cpu", "fast"])
-    ap.add_argument("--recipe", action="append", default=[], metavar="NAME=OVERRIDE,OVERRIDE",
+    ap.add_argument("--recipe", action="append", default=[], metavar="NAME=OVERRIDE,OVERRIDE", type=recipe_arg,
                     help="an extra recipe as comma-separated Hydra overrides")
     ap.add_argument("--copies", type=int, default=7, help="weight copies per run, at T/2^k")
     ap.add_argument("--mass-samples", type=int, default=1 << 16)
@@ -673,9 +740,27 @@ def main() -> None:
                              "as PATH=AREA (its exact minimal area).")
                 names.append(spec)
             setattr(args, group, names)
-        for name in [*args.curves, *args.heldout]:  # every path handed to Hydra, checked before anything trains
-            override_value(known[name][0])
+        for name in dict.fromkeys([*args.curves, *args.heldout]):  # every path handed to Hydra, and every file
+            override_value(known[name][0])                          # read and checked, before anything trains
+            if name not in builtin:
+                try:
+                    load_boundary(known[name][0], normalize="auto")  # as train.py's DataModule reads data.curve
+                except UserInputError as err:
+                    ap.error(one_line(err))
         stem = output_stem(args.out)
+        # every recipe composed, checked and built on each curve before the first trains (step cost: the first
+        # curve's; the final evaluation's cost: the trefoil's); the fidelity check runs preset=paper alone
+        def label(r: str, c: str | None = None) -> str:
+            return f"recipe {r!r} ({','.join(recipes[r])})" + (f" on curve {c!r}" if c else "")
+
+        if args.eval_cost:
+            check_runs(ap, {label(args.recipes[0]): [*EVAL_COST_RUN, *recipes[args.recipes[0]]]}, 0.0,
+                       args.steps or 200, "cpu")
+        elif not args.fidelity:
+            names = list(dict.fromkeys([*args.curves, *args.heldout]))[: 1 if args.step_cost else None]
+            check_runs(ap, {label(r, c): ["experiment=minimal_curve", f"data.curve={override_value(known[c][0])}",
+                                          *recipes[r]] for c in names for r in args.recipes},
+                       args.seconds, args.steps, args.trainer)
         if args.fidelity:
             rows = fidelity(args.fidelity)
             shown = sorted({*range(0, len(rows), max(1, len(rows) // 10)), len(rows) - 1})  # every tenth and the last
@@ -686,19 +771,24 @@ def main() -> None:
             with_suffix(stem, "_fidelity.json").write_text(json.dumps(rows, indent=2))
             return
         if args.eval_cost:
-            out = eval_cost(["experiment=minimal_trefoil", "data.curve_vertices=300", *recipes[args.recipes[0]]],
-                            args.steps or 200)
+            out = eval_cost([*EVAL_COST_RUN, *recipes[args.recipes[0]]], args.steps or 200)
             out["load"] = os.getloadavg()[0]
             print(json.dumps(out, indent=2))
             with_suffix(stem, "_eval_cost.json").write_text(json.dumps(out, indent=2))
             return
         if args.step_cost:
             first = [*args.curves, *args.heldout][0]
-            costs = step_costs({r: recipes[r] for r in args.recipes}, known[first][0])
+            costs = step_costs({r: recipes[r] for r in args.recipes}, override_value(known[first][0]))
             base = costs[args.recipes[0]]
-            print(f"seconds per step on {first} (interleaved; load {os.getloadavg()[0]:.1f}):")
+            load = os.getloadavg()[0]
+            print(f"seconds per step on {first} (interleaved; load {load:.1f}):")
             for name, c in costs.items():
                 print(f"  {name:12s} {c * 1e3:8.1f} ms  ({c / base:.2f}× {args.recipes[0]})")
+            with_suffix(stem, "_step_cost.json").write_text(json.dumps({
+                "curve": first, "seconds_per_step": costs, "ratio_to_first": {n: c / base for n, c in costs.items()},
+                "recipes": {r: recipes[r] for r in args.recipes}, "load": load, "threads": torch.get_num_threads(),
+                "machine": platform.processor() or platform.machine()}, indent=2))
+            print(f"wrote {with_suffix(stem, '_step_cost.json')}")
             return
         order = list(args.recipes)
         for ci, name in enumerate(dict.fromkeys([*args.curves, *args.heldout])):  # a curve named twice runs once

@@ -194,3 +194,74 @@ def test_a_curve_of_your_own_with_its_exact_area_runs_through_the_benchmark(tmp_
             ttq.main()
         said = str(info.value.code) + capsys.readouterr().err
         assert sentence in said and "Traceback" not in said, (argv, said)
+
+
+def test_help_lists_the_builtin_curves_and_their_names_match_curves(tmp_path, monkeypatch, capsys):
+    """CURVE_NAMES (what --help lists without writing the curve files) is curves()'s names, in its order."""
+    ttq = load_benchmark("time_to_quality")
+    assert tuple(ttq.curves(tmp_path)) == ttq.CURVE_NAMES
+    monkeypatch.setattr("sys.argv", ["time_to_quality.py", "--help"])
+    with pytest.raises(SystemExit) as info:
+        ttq.main()
+    assert info.value.code == 0
+    shown = " ".join(capsys.readouterr().out.split())  # argparse wraps the list
+    assert all(name in shown for name in ttq.CURVE_NAMES)
+
+
+def test_bad_curve_files_and_recipes_are_one_sentence_before_anything_trains(tmp_path, monkeypatch, capsys):
+    """A curve file the loader refuses (2D points, NaN) and a recipe whose overrides do not compose or hold an
+    impossible value end the script with one sentence and status 2 before the first run trains (train_recipe is
+    replaced by a failure here), even when a good curve or recipe comes first."""
+    ttq = load_benchmark("time_to_quality")
+
+    def trained(*args, **kwargs):
+        raise AssertionError("a run trained before the arguments were checked")
+
+    monkeypatch.setattr(ttq, "train_recipe", trained)
+    t = 2 * np.pi * np.arange(40) / 40
+    np.savetxt(tmp_path / "flat.txt", np.stack([0.3 * np.cos(t), 0.3 * np.sin(t)], -1))
+    ring = np.stack([0.3 * np.cos(t), 0.3 * np.sin(t), 0 * t], -1)
+    ring[5, 1] = np.nan
+    np.savetxt(tmp_path / "holed.txt", ring)
+    common = ["--steps", "3", "--copies", "1", "--out", str(tmp_path / "out" / "x")]
+    for argv, sentence in [
+        (["--recipes", "cpu", "--curves", f"{tmp_path / 'flat.txt'}=0.28"], "must have 3 coordinates per vertex"),
+        (["--recipes", "cpu", "--curves", "circle05", f"{tmp_path / 'holed.txt'}=0.28"], "NaN or infinite"),
+        (["--recipes", "cpu", "--curves", "circle05", "--recipe", "noequals"], "must be NAME=OVERRIDE,OVERRIDE"),
+        (["--recipes", "cpu", "--curves", "circle05", "--recipe", "x="], "must be NAME=OVERRIDE,OVERRIDE"),
+        (["--recipes", "cpu", "x", "--curves", "circle05", "--recipe", "x=model.optim.lr=-1"],
+         "recipe 'x' (model.optim.lr=-1) on curve 'circle05': model.optim.lr=-1 must be positive."),
+        (["--recipes", "y", "--curves", "circle05", "--recipe", "y=notakey=3"], "Could not override 'notakey'"),
+        (["--recipes", "y", "--curves", "circle05", "--recipe", "y=recipe=nope"], "Could not find 'recipe/nope'"),
+        (["--recipes", "y", "--curves", "circle05", "--recipe", "y=preset=cpu,trainer.log_every_n_steps=0",
+          "--step-cost"], "trainer.log_every_n_steps=0"),
+    ]:
+        monkeypatch.setattr("sys.argv", ["time_to_quality.py", *common, *argv])
+        with pytest.raises(SystemExit) as info:
+            ttq.main()
+        err = capsys.readouterr().err
+        assert info.value.code == 2 and sentence in err.splitlines()[-1] and "Traceback" not in err, (argv, err)
+    assert not (tmp_path / "out" / "x.csv").exists()
+
+
+def test_step_cost_writes_its_numbers_beside_the_other_modes(tmp_path, monkeypatch, capsys):
+    """--step-cost writes <stem>_step_cost.json as --eval-cost writes <stem>_eval_cost.json (the measurement is
+    replaced by fixed numbers here: nothing trains)."""
+    import json
+
+    ttq = load_benchmark("time_to_quality")
+    seen = {}
+
+    def fixed(recipes, curve):
+        seen.update(recipes=list(recipes), curve=curve)
+        return {"cpu": 0.02, "fast": 0.01}
+
+    monkeypatch.setattr(ttq, "step_costs", fixed)
+    monkeypatch.setattr("sys.argv", ["time_to_quality.py", "--step-cost", "--recipes", "cpu", "fast", "--curves",
+                                     "circle05", "--out", str(tmp_path / "sc")])
+    ttq.main()
+    out = json.loads((tmp_path / "sc_step_cost.json").read_text())
+    assert seen["recipes"] == ["cpu", "fast"] and seen["curve"].endswith("circle05.txt'")
+    assert out["curve"] == "circle05" and out["seconds_per_step"] == {"cpu": 0.02, "fast": 0.01}
+    assert out["ratio_to_first"] == {"cpu": 1.0, "fast": 0.5}
+    assert "sc_step_cost.json" in capsys.readouterr().out

@@ -1,0 +1,66 @@
+"""The benchmark scripts' refusals (grid_solver.py, curve_margin.py, dense_curves.py, final_evaluation_cost.py): an
+impossible argument or an unusable checkpoint ends the script with one sentence on stderr and status 2 before
+anything is measured, never a traceback or a nonsense number."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from conftest import load_benchmark
+
+from deepcurrents.models.base import CHECKPOINT_KEY
+
+
+def refused(monkeypatch, capsys, script: str, argv: list[str]) -> str:
+    """Runs ``script``'s main() with ``argv``; asserts status 2 and no traceback. → the last stderr line."""
+    bench = load_benchmark(script)
+    monkeypatch.setattr("sys.argv", [f"{script}.py", *argv])
+    with pytest.raises(SystemExit) as info:
+        bench.main()
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "Traceback" not in err, err
+    return err.strip().splitlines()[-1]
+
+
+@pytest.mark.parametrize(("script", "argv", "sentence"), [
+    ("grid_solver", ["--resolutions", "0"], "--resolutions 0 must be at least 4."),
+    ("grid_solver", ["--resolutions", "16", "-4"], "--resolutions -4 must be at least 4."),
+    ("grid_solver", ["--iterations", "0"], "--iterations 0 must be at least 1."),
+    ("grid_solver", ["--iterations", "-2"], "--iterations -2 must be at least 1."),
+    ("grid_solver", ["--repeats", "0"], "--repeats 0 must be at least 1."),
+    ("grid_solver", ["--threads", "0"], "--threads 0 must be at least 1."),
+    ("grid_solver", ["--device", "foo"], "--device 'foo' is not a device"),
+    ("grid_solver", ["--device", "cuda"], "--device cuda needs a CUDA GPU, and this machine has none"),
+    ("curve_margin", ["--extents", "0"], "--extents 0.0 must be in (0, 1)"),
+    ("curve_margin", ["--extents", "0.5", "-0.5"], "--extents -0.5 must be in (0, 1)"),
+    ("curve_margin", ["--extents", "1.5"], "--extents 1.5 must be in (0, 1)"),
+    ("curve_margin", ["--cells", "0"], "--cells 0 must be at least 1."),
+    ("curve_margin", ["--iterations", "0"], "--iterations 0 must be at least 1."),
+    ("curve_margin", ["--vertices", "2"], "--vertices 2 must be at least 3."),
+    ("curve_margin", ["--tol", "0"], "--tol 0.0 must be greater than 0.0."),
+    ("dense_curves", ["--vertices", "100", "2"], "--vertices 2 must be at least 3."),
+    ("dense_curves", ["--resampled", "0"], "--resampled 0 must be at least 3."),
+    ("dense_curves", ["--repeats", "0"], "--repeats 0 must be at least 1."),
+    ("dense_curves", ["--max-pairs", "0"], "--max-pairs 0.0 must be at least 1."),
+    ("final_evaluation_cost", ["x.ckpt", "--threads", "0"], "--threads 0 must be at least 1."),
+    ("final_evaluation_cost", ["x.ckpt", "--mass-refine", "-1"], "--mass-refine -1 must be at least 1."),
+    ("final_evaluation_cost", ["x.ckpt", "--mass-tube-radius", "-0.5"], "--mass-tube-radius -0.5 must be at least 0"),
+])
+def test_impossible_arguments_are_one_sentence(monkeypatch, capsys, script, argv, sentence):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # the CUDA case reads the same on a GPU machine
+    assert sentence in refused(monkeypatch, capsys, script, argv)
+
+
+def test_final_evaluation_cost_refuses_an_unusable_checkpoint_in_one_sentence(tmp_path, monkeypatch, capsys):
+    """A missing file, a run folder and the grid method's checkpoint (no network to time): the loader's sentence
+    (or one naming the kind of run) on stderr, status 2. The grid checkpoint is a crafted file naming the class."""
+    grid = tmp_path / "grid.ckpt"
+    torch.save({"state_dict": {}, CHECKPOINT_KEY: {"module": "deepcurrents.baselines.grid.GridModule"}}, grid)
+    (tmp_path / "run" / "checkpoints").mkdir(parents=True)
+    for argv, sentence in [
+        ([str(tmp_path / "nope.ckpt")], "does not exist."),
+        ([str(tmp_path / "run")], "is a directory, not a checkpoint file"),
+        ([str(grid)], "is the grid method's checkpoint (experiment=minimal_grid), and this benchmark times"),
+    ]:
+        line = refused(monkeypatch, capsys, "final_evaluation_cost", argv)
+        assert line.startswith("error: ckpt_path=") and sentence in line, line
