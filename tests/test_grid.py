@@ -196,7 +196,7 @@ def test_grid_is_sized_like_the_network_and_rejects_bad_input(tmp_path):
                          # torch's allocator error inside Hydra's before (1 TB in one allocation)
                          (["model.grid.resolution=5000"], r"^model\.grid\.resolution=5000 asks for about .* GiB"),
                          # Lightning's "remove Trainer(gradient_clip_val=0.1)" before, a setting nobody typed
-                         (["recipe=sharp"], r"^trainer\.gradient_clip_val=0\.1 \(recipe=sharp sets it\) does not")]:
+                         (["recipe=sharp"], r"^trainer\.gradient_clip_val=0\.1 \(set by recipe=sharp, or on the")]:
         overrides = bad if bad[0].startswith("experiment") else ["experiment=minimal_grid", *bad]
         with pytest.raises(ConfigError, match=message) as info:
             train(compose_cfg([*overrides, *TINY]), out_dir=tmp_path)

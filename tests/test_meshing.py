@@ -602,7 +602,78 @@ def test_a_mesh_left_with_a_hole_is_said(monkeypatch, caplog):
     j = (i + 1) % n
     faces = np.concatenate([np.stack([i, j, n + j], 1), np.stack([i, n + j, n + i], 1)])
     annulus = trimesh.Trimesh(np.concatenate([ring(0.2), ring(0.5)]), faces, process=False)
+    box = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
     with caplog.at_level(logging.WARNING):
-        surface._say_open_border(annulus, [ring(0.5)], 0.04, 0.03, "resolution", 64)
+        surface._say_open_border(annulus, [ring(0.5)], 0.04, 0.03, box, "phase", "resolution", 64)
     assert "The mesh has a border up to 0.3 from Γ (64 of its 128 border edges" in caplog.text
-    assert "resolution=96 or more" in caplog.text
+    assert "resolution=96 or more" in caplog.text and "box" not in caplog.text.replace("meshed box):", "")
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # a level set's hole: no word of the phase
+        surface._say_open_border(annulus, [ring(0.5)], 0.04, 0.03, box, "level_set", "resolution", 64)
+    assert "a hole or a tear." in caplog.text and "phase" not in caplog.text
+    # a square sheet cut by its meshed box (a family member in the family's cube): widen the box, not the grid
+    u = np.linspace(-0.6, 0.6, 13)
+    gx, gy = np.meshgrid(u, u, indexing="ij")
+    k = np.arange(12 * 13).reshape(12, 13)[:, :12].ravel()
+    sheet = trimesh.Trimesh(np.stack([gx.ravel(), gy.ravel(), 0 * gx.ravel()], -1),
+                            np.concatenate([np.stack([k, k + 13, k + 14], 1), np.stack([k, k + 14, k + 1], 1)]))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        surface._say_open_border(sheet, [ring(0.5)], 0.04, 0.03, np.array([[-0.6, -0.6, -0.1], [0.6, 0.6, 0.1]]),
+                                 "phase", "resolution", 64)
+    assert "The meshed box cuts the surface" in caplog.text and "hole" not in caplog.text
+
+
+def test_aliased_edges_are_the_turns_of_more_than_half_a_turn_between_nodes():
+    """By hand: f/2a rising by 2π over one edge (a jump thinner than a cell) is aliased whatever Ω does, the same
+    rise over four edges is not; NaN (interpolated) nodes give no edge."""
+    from deepcurrents.eval.meshing.grid_angle import aliased_edges
+
+    half_f = np.zeros((6, 3, 3))
+    half_f[3:] = 2 * np.pi  # a jump between the nodes 2 and 3 along axis 0
+    omega_half = np.full_like(half_f, 0.7)
+    phase = np.mod(half_f + omega_half, 2 * np.pi)  # φ = f/2a + Ω/2 (mod 2π): the same at both ends of the jump
+    edges = aliased_edges(phase, half_f)
+    assert len(edges) == 9 and (edges[:, 0, 0] == 2).all() and (edges[:, 1, 0] == 3).all()
+    assert (edges[:, 0, 1:] == edges[:, 1, 1:]).all()
+    ramp = np.broadcast_to(np.linspace(0, 2 * np.pi, 6)[:, None, None], (6, 3, 3)).copy()  # 0.4π an edge
+    assert len(aliased_edges(np.mod(ramp + omega_half, 2 * np.pi), ramp)) == 0
+    half_f[2:4] = np.nan
+    assert len(aliased_edges(np.mod(half_f + 0.7, 2 * np.pi), half_f)) == 0
+
+
+def test_a_grid_that_aliases_the_phase_away_from_gamma_is_meshed_finer(monkeypatch, caplog):
+    """extract_surface meshes once more at 1.5× the resolution when the phase method reports aliased edges away
+    from Γ (a sharpened catenoid at 128³ lost its sheet in places: README, Troubleshooting); next to Γ they are
+    expected (Ω/2 turns fast) and change nothing."""
+    import logging
+
+    from deepcurrents.eval.meshing.phase import PhaseMethod
+
+    torch.manual_seed(0)
+    from deepcurrents.nn import NeuralCurrent
+
+    current = NeuralCurrent(3, loops=[torch.tensor(circle(0.5, n=96)).float()], num_frequencies=8, width=8, depth=1)
+    plain = extract_surface(current, resolution=24)
+    calls = []
+    sample = PhaseMethod.sample
+
+    def reported(self, points, shape, loops, voxel, where):
+        calls.append(tuple(shape))
+        out = sample(self, points, shape, loops, voxel)
+        self.aliased_points = np.array([where])
+        return out
+
+    for where, finer in (([0.5, 0.0, 0.01], False), ([0.0, 0.0, 0.3], True)):  # on Γ; 0.3 above the disk
+        calls.clear()
+        caplog.clear()
+        monkeypatch.setattr(PhaseMethod, "sample", lambda self, *a, w=where: reported(self, *a, w))
+        with caplog.at_level(logging.INFO):
+            result = extract_surface(current, resolution=24)
+        assert len(calls) == (2 if finer else 1)
+        if finer:
+            assert "meshed at 36 instead" in caplog.text and calls[1][0] > calls[0][0]
+            monkeypatch.setattr(PhaseMethod, "sample", sample)
+            assert result.mesh.area == pytest.approx(extract_surface(current, resolution=36).mesh.area, rel=1e-12)
+        else:
+            assert result.mesh.area == plain.mesh.area and "instead" not in caplog.text

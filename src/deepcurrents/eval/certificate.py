@@ -49,7 +49,7 @@ def sharpened_mass_estimate(current, sampler, level: float, kappa: float = 16.0,
     phase.
 
     ``tube_radius`` > 0: the points within it of Γ's segments (``geometry.polyline.tube_density``) are integrated
-    apart, by ``tube_fraction`` × ``num_samples`` more samples with density ∝ 1/r about Γ (drawn with ``seed``),
+    apart, by ``tube_fraction`` × ``num_samples`` more samples with density ∝ 1/r about Γ (drawn with ``seed`` + 1),
     while the sampler's samples there count 0: the same unbiased estimate, with a finite variance (module
     docstring). The standard error adds the two parts' variances (independent samples)."""
     if current.dim != 3:
@@ -58,7 +58,9 @@ def sharpened_mass_estimate(current, sampler, level: float, kappa: float = 16.0,
     tube = boundary_segments(current) if tube_radius > 0 else None
     if tube is not None and float((tube[1] - tube[0]).norm(dim=-1).sum()) == 0:
         tube = None
-    gen = torch.Generator(device="cpu").manual_seed(seed)
+    # not ``seed`` itself: a sampler seeded alike draws the same uniform stream, and the two parts' errors, whose
+    # variances are added as independent, would move together
+    gen = torch.Generator(device="cpu").manual_seed(seed + 1)
 
     def sharpened_norm(x: torch.Tensor) -> torch.Tensor:  # ψ'(φ)|ω| (n,), float64
         x = x.float().to(dev)

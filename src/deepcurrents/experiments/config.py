@@ -10,7 +10,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from deepcurrents.errors import ConfigError, positive_int
+from deepcurrents.errors import ConfigError, number_between, positive_int
 from deepcurrents.eval.meshing import CURVE_METHODS, MESH_METHOD_CHOICES
 from deepcurrents.eval.meshing.curve_2d import check_curve_grid
 from deepcurrents.models.schedules import SCHEDULE_KEYS
@@ -137,10 +137,8 @@ def validate_config(cfg: DictConfig) -> None:
     for key, lo, hi in (("evaluation.mesh.min_alignment", -1.0, 1.0), ("evaluation.curve.min_alignment", -1.0, 1.0),
                         ("evaluation.mesh.min_component", 0.0, 1.0),  # a cosine; a fraction of the area
                         ("evaluation.mesh.padding", 0.0, 1.0)):  # the box's growth, as the apps take it
-        value = OmegaConf.select(cfg, key)
-        if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
-                                      and lo <= value <= hi):
-            raise ConfigError(f"{key}={value!r} must be a number in [{lo:g}, {hi:g}].")
+        if OmegaConf.select(cfg, key) is not None:
+            number_between(key, OmegaConf.select(cfg, key), lo, hi)
     for key in ("evaluation.mass_refine_mesh", "evaluation.mesh.close_boundary"):  # 'false' (a string) is truthy
         value = OmegaConf.select(cfg, key)
         if value not in (None, True, False):
@@ -154,9 +152,9 @@ def validate_config(cfg: DictConfig) -> None:
     clip = OmegaConf.select(cfg, "trainer.gradient_clip_val")
     if clip and str(OmegaConf.select(cfg, "model._target_", default="")).endswith(".GridModule"):
         # else Lightning's "remove Trainer(gradient_clip_val=0.1)", a setting the user never typed
-        raise ConfigError(f"trainer.gradient_clip_val={clip} (recipe=sharp sets it) does not apply to the grid method "
-                          "(model=grid): its ADMM takes no gradient steps; drop recipe=sharp, or set "
-                          "trainer.gradient_clip_val=null.")
+        raise ConfigError(f"trainer.gradient_clip_val={clip} (set by recipe=sharp, or on the command line) does "
+                          "not apply to the grid method (model=grid): its ADMM takes no gradient steps; drop "
+                          "recipe=sharp, or set trainer.gradient_clip_val=null.")
     if (OmegaConf.select(cfg, "model.mass_weight") or 0) > 0 and OmegaConf.select(cfg, "data.sampling.kind") == "near":
         # the near samples' importance weights are folded into the metric, so E|ω| would not be the mass
         raise ConfigError("model.mass_weight needs uniform ambient samples; data.sampling.kind=near weights "

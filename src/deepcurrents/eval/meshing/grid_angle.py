@@ -87,7 +87,7 @@ def grid_solid_angle(points: torch.Tensor, shape: tuple[int, int, int], loops: l
 
 def grid_phase(current, points: torch.Tensor, shape: tuple[int, int, int], loops: list[np.ndarray],
                coarse: int = 4, near: float = 0.02, margin: float = 0.25,
-               chunk_size: int = 1 << 14) -> tuple[torch.Tensor, float]:
+               chunk_size: int = 1 << 14, info: dict | None = None) -> tuple[torch.Tensor, float]:
     """The phase φ = f/(2·alpha_scale) + Ω/2 of a 3D current (meshing.phase) at the nodes of a regular grid,
     modulo 2π, exact wherever the mesh is made and interpolated elsewhere.
 
@@ -101,7 +101,8 @@ def grid_phase(current, points: torch.Tensor, shape: tuple[int, int, int], loops
     for the trained ``make run`` trefoil. θ is the circular mean of φ over every node, as before; the cells
     are chosen with its value over the coarse nodes, which differs from it by less than the margin (5e-3 rad
     on a planar circle's thin grid, whose nodes are mostly in the current's smeared jump; 1e-4 on the
-    trefoil; within 1.1e-4 of its value on the dense grid either way).
+    trefoil; within 1.1e-4 of its value on the dense grid either way). ``info``: as ``banded_angle``'s, its
+    "exact" f/(2·alpha_scale) at the nodes computed exactly.
     points: (G0·G1·G2, 3) → (φ (G0·G1·G2,) float64 modulo 2π, θ)."""
     two_a = 2.0 * current.alpha_scale
 
@@ -115,7 +116,7 @@ def grid_phase(current, points: torch.Tensor, shape: tuple[int, int, int], loops
     def mark(values: np.ndarray, corners: list[tuple[slice, ...]]) -> np.ndarray:
         return level_cells(values, corners, off_surface_phase(values[..., 0]), margin)
 
-    phase = banded_angle(points, shape, loops, exact, mark, coarse, near)
+    phase = banded_angle(points, shape, loops, exact, mark, coarse, near, info)
     return phase, off_surface_phase(phase.cpu().numpy())
 
 
@@ -156,15 +157,20 @@ def level_cells(values: np.ndarray, corners: list[tuple[slice, ...]], theta: flo
 def banded_angle(points: torch.Tensor, shape: tuple[int, int, int], loops: list[np.ndarray],
                  exact: Callable[[torch.Tensor], torch.Tensor],
                  mark: Callable[[np.ndarray, list[tuple[slice, ...]]], np.ndarray], coarse: int,
-                 near: float) -> torch.Tensor:
+                 near: float, info: dict | None = None) -> torch.Tensor:
     """An angle field on a grid from its exact values at a coarse sub-grid and in the coarse cells that
     need them (near Γ, and those ``mark`` picks), trilinear interpolation of e^{i·angle} elsewhere.
     ``exact(x)`` (N, 3) → (N, k): column 0 the angle, other columns what ``mark`` needs;
     ``mark(values (C0, C1, C2, k), corners)`` → (C0 − 1, C1 − 1, C2 − 1) bool, ``corners`` the 8 slices of
-    the coarse nodes that give each cell's corners. → (G0·G1·G2,) float64 angle (mod 2π)."""
+    the coarse nodes that give each cell's corners. → (G0·G1·G2,) float64 angle (mod 2π). ``info`` (a dict, if
+    given) receives under "exact" the other columns of ``exact`` at every node where it was evaluated, NaN at the
+    interpolated ones: (G0, G1, G2, k − 1) float64."""
     dev = points.device
     if coarse <= 1 or min(shape) < 3:
-        return exact(points)[:, 0]
+        values = exact(points)
+        if info is not None:
+            info["exact"] = values[:, 1:].double().cpu().numpy().reshape(*shape, -1)
+        return values[:, 0]
     grid = points.reshape(*shape, 3)
     idx = [_coarse_index(n, coarse) for n in shape]
     sub = grid[idx[0]][:, idx[1]][:, :, idx[2]]
@@ -192,6 +198,32 @@ def banded_angle(points: torch.Tensor, shape: tuple[int, int, int], loops: list[
              idx[2][c[2]]:idx[2][c[2] + 1] + 1] = True
     flat = torch.as_tensor(mask.reshape(-1), device=dev)
     out = torch.as_tensor(np.angle(fine).reshape(-1), dtype=torch.float64, device=dev)
+    known = np.full((*shape, values.shape[-1] - 1), np.nan) if info is not None else None
+    if known is not None:
+        known[np.ix_(*idx)] = values[..., 1:]
     if bool(flat.any()):
-        out[flat] = exact(points[flat])[:, 0]
+        inside = exact(points[flat])
+        out[flat] = inside[:, 0]
+        if known is not None:
+            known.reshape(-1, known.shape[-1])[mask.reshape(-1)] = inside[:, 1:].double().cpu().numpy()
+    if info is not None:
+        info["exact"] = known
     return out
+
+
+def aliased_edges(phase: np.ndarray, half_f: np.ndarray) -> np.ndarray:
+    """The grid edges across which the phase turns by more than half a turn, which e^{iφ} sampled at the two nodes
+    shows turning the other way (a jump of the current only a few cells thick): marching cubes then puts the
+    crossing on the off-surface side and the mesh loses the sheet there. The turn is unwrapped through f, which is
+    continuous: Δφ = Δ(f/2a) + wrap(Δ(φ − f/2a)), the second term Ω/2's change (exact unless Γ passes between the
+    nodes: callers leave out the edges near Γ). phase, half_f (G0, G1, G2): φ and f/(2·alpha_scale) at the nodes,
+    NaN where unknown (no edge there). → (E, 2, 3) int: each aliased edge's two node indices."""
+    out = []
+    for axis in range(3):
+        turn = np.diff(half_f, axis=axis) + _wrap(np.diff(phase - half_f, axis=axis))
+        with np.errstate(invalid="ignore"):
+            first = np.argwhere(np.abs(turn) > np.pi)
+        second = first.copy()
+        second[:, axis] += 1
+        out.append(np.stack([first, second], 1))
+    return np.concatenate(out)

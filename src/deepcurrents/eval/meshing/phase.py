@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from scipy.ndimage import map_coordinates
 
-from deepcurrents.eval.meshing.grid_angle import grid_phase, phase_from_f
+from deepcurrents.eval.meshing.grid_angle import aliased_edges, grid_phase, phase_from_f
 from deepcurrents.eval.meshing.method import MeshMethod
 
 
@@ -33,7 +33,13 @@ class PhaseMethod(MeshMethod):
     def sample(self, points, shape, loops, voxel):
         # exact near Γ and where the level θ + π can pass, interpolated elsewhere (meshing.grid_angle): the
         # network and the solid angle's closed form at every node were most of the meshing time
-        phase, self.theta = grid_phase(self.current, points, shape, loops)
+        info: dict = {}
+        phase, self.theta = grid_phase(self.current, points, shape, loops, info=info)
+        # where the phase turns by more than half a turn between two nodes, as points (extract_surface decides)
+        edges = aliased_edges(phase.cpu().numpy().reshape(tuple(shape)), info["exact"][..., 0])
+        flat = np.ravel_multi_index(edges.reshape(-1, 3).T, tuple(shape)) if len(edges) else np.zeros(0, int)
+        self.aliased_points = points[torch.as_tensor(flat, device=points.device)].double().cpu().numpy() \
+            .reshape(-1, 2, 3).mean(1)
         rel = (phase - self.theta).cpu().numpy().reshape(tuple(shape))
         self._side = np.cos(rel)
         return np.sin(rel), 0.0

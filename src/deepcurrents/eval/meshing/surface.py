@@ -29,6 +29,7 @@ import torch
 import trimesh
 from skimage.measure import marching_cubes
 
+from deepcurrents.errors import ConfigError
 from deepcurrents.eval.device import device_of, require_memory
 from deepcurrents.eval.level_sets import reads_level_sets
 from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
@@ -170,6 +171,7 @@ def extract_surface(
     level_blend: float = 0.0,
     chunk_size: int = 1 << 16,
     resolution_key: str = "resolution",
+    refine_aliased: bool = True,
 ) -> MeshingResult:
     """The surface of a 3D current as a triangle mesh whose border lies on Γ (see the module docstring).
 
@@ -194,6 +196,11 @@ def extract_surface(
             families among them.
         resolution_key: the setting that gave ``resolution``, named if its grid cannot fit in memory
             (``evaluation.mesh.resolution`` for a run's final mesh; an app's ``resolution``).
+        refine_aliased: phase method: where the current's jump is so thin that its phase turns by more than half
+            a turn between two nodes away from Γ (``grid_angle.aliased_edges``), mesh once more at 1.5× the
+            resolution (if that grid fits in memory), said in the log: marching cubes loses the sheet at such
+            edges (a sharpened catenoid at 128³: holes, +19 % of area; at 192³ closed, +0.6 %). Grids without
+            such edges (the trained trefoils of ``make run`` and of 300 vertices, at 128³) mesh as before.
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
@@ -206,6 +213,26 @@ def extract_surface(
     closed_area = 0.0
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
     tube = max(boundary_tube, 1.5 * voxel) if close_boundary else 0.0
+    aliased = getattr(finder, "aliased_points", None)
+    if refine_aliased and aliased is not None and len(aliased):
+        starts, ends, _ = closed_loop_segments(loops)  # next to Γ Ω/2 turns fast anyway, and the tube is cut
+        count = int((segment_distance(aliased, starts, ends) > max(tube, boundary_tube) + 2.0 * voxel).sum())
+        finer = math.ceil(1.5 * resolution)
+        if count:
+            try:
+                grid_shape(bounds, finer, resolution_key)  # the memory check only
+            except ConfigError:
+                log.warning("At %d edges of the %s=%d grid the current's phase turns by more than half a turn "
+                            "between nodes, so its mesh may have holes there; %s=%d does not fit in memory.",
+                            count, resolution_key, resolution, resolution_key, finer)
+            else:
+                log.info("At %d edges of the %s=%d grid the current's phase turns by more than half a turn between "
+                         "nodes (its jump only a few cells thick), where marching cubes would lose the sheet: meshed "
+                         "at %d instead.", count, resolution_key, resolution, finer)
+                del vol, finder
+                return extract_surface(current, finer, delta, boundary_tube, bounds, padding, newton_steps,
+                                       min_component, min_alignment, close_boundary, method, strip_rows,
+                                       level_blend, chunk_size, resolution_key, refine_aliased=False)
     widened = tube > boundary_tube  # by the voxels: the border is cut and closed at this coarse a scale
     if widened and (resolution_key, resolution, round(voxel, 9)) not in _WIDENED_SAID:  # once, not per member
         _WIDENED_SAID.add((resolution_key, resolution, round(voxel, 9)))
@@ -270,26 +297,39 @@ def extract_surface(
     # reconstruction, one face of 24106). trimesh fills holes of three and four edges, wound like their rims.
     trimesh.repair.fill_holes(mesh)
     if tube > 0:
-        _say_open_border(mesh, loops, tube, voxel, resolution_key, resolution)
+        _say_open_border(mesh, loops, tube, voxel, bounds, method, resolution_key, resolution)
     return MeshingResult(mesh, finder.reported_level, zipped, closed_area)
 
 
-def _say_open_border(mesh: trimesh.Trimesh, loops: list[np.ndarray], tube: float, voxel: float,
-                     resolution_key: str, resolution: int) -> None:
+def _say_open_border(mesh: trimesh.Trimesh, loops: list[np.ndarray], tube: float, voxel: float, bounds: np.ndarray,
+                     method: str, resolution_key: str, resolution: int) -> None:
     """A warning when a mesh whose border was closed onto Γ still has border edges farther than the tube and two
-    cells from Γ: a hole or a tear. Where the current's jump is only a few cells thick, its phase can turn by more
-    than half a turn between two nodes, and e^{iφ} sampled there turns the other way: marching cubes puts the
-    crossing on the off-surface side and the side test drops it (a sharpened catenoid at 128³: the phase's
-    10–90 % rise 1.8–2.2 cells wide at the holes, +19 % of area, border 0.15 off Γ; at 192³ closed, +0.6 %). A
+    cells from Γ. On the faces of the meshed box ``bounds``: the box cuts the surface (a family member in the
+    family's cube), so widen it. Elsewhere: a hole or a tear. With the phase, where the current's jump is only a
+    few cells thick its phase can turn by more than half a turn between two nodes, and e^{iφ} sampled there turns
+    the other way: marching cubes puts the crossing on the off-surface side and the side test drops it (a sharpened
+    catenoid at 128³: the phase's 10–90 % rise 1.8–2.2 cells wide at the holes, +19 % of area, border 0.15 off Γ;
+    at 192³ closed, +0.6 %; ``extract_surface``'s ``refine_aliased`` now meshes such grids finer by itself). A
     surface that Γ pierces (the Borromean rings) leaves a slit at any resolution."""
-    edges = border_edges(np.asarray(mesh.faces))
+    edges = mesh.edges[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
     if not len(edges):
         return
+    middle = np.asarray(mesh.vertices)[edges].mean(1)
     starts, ends, _ = closed_loop_segments(loops)
-    far = segment_distance(np.asarray(mesh.vertices)[edges].mean(1), starts, ends)
-    if far.max() > tube + 2.0 * voxel:
-        log.warning("The mesh has a border up to %.3g from Γ (%d of its %d border edges farther than the tube and "
-                    "two cells): a hole or a tear. Where the current's jump is only a few of the %.3g-wide cells thick "
-                    "the grid cannot follow its phase: mesh it finer (%s=%d or more; a surface that Γ pierces keeps "
-                    "such a slit at any resolution).", far.max(), int((far > tube + 2.0 * voxel).sum()), len(edges),
-                    voxel, resolution_key, math.ceil(1.5 * resolution))
+    distance = segment_distance(middle, starts, ends)
+    far = distance > tube + 2.0 * voxel
+    if not far.any():
+        return
+    on_box = ((np.abs(middle - bounds[0]) < voxel) | (np.abs(middle - bounds[1]) < voxel)).any(1)
+    if (far & on_box).any():
+        log.warning("The meshed box cuts the surface: %d border edges lie on its faces, up to %.3g from Γ; widen it "
+                    "(evaluation.mesh.padding, or an app's padding=).", int((far & on_box).sum()),
+                    distance[far & on_box].max())
+    inside = far & ~on_box
+    if inside.any():
+        why = (f" Where the current's jump is only a few of the {voxel:.3g}-wide cells thick the grid cannot follow "
+               f"its phase: mesh it finer ({resolution_key}={math.ceil(1.5 * resolution)} or more; a surface that "
+               "Γ pierces keeps such a slit at any resolution)." if method == "phase" else "")
+        log.warning("The mesh has a border up to %.3g from Γ (%d of its %d border edges farther than the tube and two "
+                    "cells, inside the meshed box): a hole or a tear.%s", distance[inside].max(), int(inside.sum()),
+                    len(edges), why)
