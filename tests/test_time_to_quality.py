@@ -375,7 +375,7 @@ def test_narrow_band_phase_is_the_dense_phase_where_the_mesh_is(curve, scale):
     meshes = [extract_surface(current, resolution=40, method="phase").mesh]
     with pytest.MonkeyPatch.context() as mp:  # every node exact, the same θ
         mp.setattr(phase_module, "grid_phase",
-                   lambda current, x, *args: (current_phase(current, x), grid_phase(current, x, *args)[1]))
+                   lambda current, x, *args, **kw: (current_phase(current, x), grid_phase(current, x, *args, **kw)[1]))
         meshes.append(extract_surface(current, resolution=40, method="phase").mesh)
     assert len(meshes[0].faces) == len(meshes[1].faces)
     assert meshes[0].area == pytest.approx(meshes[1].area, rel=1e-9)
