@@ -34,10 +34,9 @@ import deepcurrents
 from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.experiments.runner import build
 from deepcurrents.losses import current_loss
-from deepcurrents.models.base import CHECKPOINT_KEY
 from deepcurrents.models.callbacks import MediaCallback
 from deepcurrents.models.current_module import CurrentModule
-from deepcurrents.models.loading import CheckpointError, load_module, module_class, read_checkpoint, run_kind
+from deepcurrents.models.loading import load_module, read_checkpoint
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_args import check_range  # noqa: E402  (a sibling module, not a package)
@@ -91,12 +90,7 @@ def main() -> None:
 
 def measure(args: argparse.Namespace) -> None:
     """Loads the checkpoint, times its final evaluation, render and training step, and prints the JSON line."""
-    cls = module_class(read_checkpoint(args.ckpt)[CHECKPOINT_KEY]["module"], args.ckpt)
-    if not issubclass(cls, CurrentModule):
-        raise CheckpointError(f"ckpt_path='{args.ckpt}' is {run_kind(cls)}, and this benchmark times a neural "
-                              "current's final evaluation and training step: give a minimal surface's checkpoint "
-                              "(experiment=minimal_curve, minimal_trefoil, minimal_2d, …).")
-    module = load_module(args.ckpt, expected=CurrentModule)
+    module = load_module(args.ckpt, expected=CurrentModule)  # one sentence for another kind (the grid's, a family's)
     if args.mass_refine is not None:
         module.evaluation["mass_refine"] = args.mass_refine
     if args.mass_refine_mesh is not None:

@@ -60,7 +60,8 @@ def test_final_evaluation_cost_refuses_an_unusable_checkpoint_in_one_sentence(tm
     for argv, sentence in [
         ([str(tmp_path / "nope.ckpt")], "does not exist."),
         ([str(tmp_path / "run")], "is a directory, not a checkpoint file"),
-        ([str(grid)], "is the grid method's checkpoint (experiment=minimal_grid), and this benchmark times"),
+        ([str(grid)], "is the grid method's checkpoint (experiment=minimal_grid) (GridModule), but this needs a "
+                      "minimal surface's checkpoint"),
     ]:
         line = refused(monkeypatch, capsys, "final_evaluation_cost", argv)
         assert line.startswith("error: ckpt_path=") and sentence in line, line
