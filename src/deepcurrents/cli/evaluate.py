@@ -7,7 +7,8 @@ Writes ``metrics.json`` (in a folder named after the checkpoint beside it, or ``
   ``mass_area`` (``mass_length`` in 2D) with its standard error;
 - 3D: ``mesh_area``, ``mesh_faces``, ``boundary_error`` of the extracted surface (or of ``mesh=``);
 - with ``target=``: ``ucd`` = E_{y ~ U(target)} dist(y, mesh) (the paper's UCD, ``samples`` uniform points),
-  ``ucd_reverse`` (mesh → target) and ``chamfer`` (their mean), in the meshes' units.
+  ``ucd_reverse`` (mesh → target) and ``chamfer`` (their mean), in the meshes' units; without it, a
+  reconstruction's checkpoint is scored against the target it carries (a mesh or a point cloud), as its run was.
 
 A run that normalised its curve or target (data.normalize): ``target=`` and ``mesh=`` are in the input's units (as
 the run's own mesh.ply) and move into the model's frame, where the numbers are computed, as the run's were;
@@ -39,6 +40,7 @@ from deepcurrents.eval.metrics import (
 from deepcurrents.geometry.meshes import read_mesh, write_mesh
 from deepcurrents.models.current_module import input_mesh
 from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
+from deepcurrents.models.reconstruction import carries_target, reconstruction_metrics
 
 log = logging.getLogger("deepcurrents.evaluate")
 
@@ -126,6 +128,13 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
                 metrics.update(ucd=ucd, ucd_reverse=reverse, chamfer=0.5 * (ucd + reverse))
                 if frame is not None:
                     metrics["ucd_input_units"] = ucd * frame[0]
+        elif carries_target(module):  # the run's own target, in the model's frame, scored as the run scored it
+            # the source file's name lives in the run's metrics, not in the checkpoint's tensors
+            metrics["target"] = module.target_source or "the checkpoint's own"
+            log.info("No target= given: the mesh is scored against the target this checkpoint carries.")
+            metrics.update(reconstruction_metrics(module, mesh, samples, seed))
+            if frame is not None and metrics["ucd"] is not None:
+                metrics["ucd_input_units"] = metrics["ucd"] * frame[0]
     (out / "metrics.json").write_text(metrics_json(metrics))
     return metrics
 

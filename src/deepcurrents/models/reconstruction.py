@@ -80,6 +80,11 @@ class TargetGeometry:
         return vertices * float(module.target_scale) + module.target_offset.cpu().numpy()
 
 
+def carries_target(module) -> bool:
+    """Whether ``module`` holds a target (a reconstruction's, or the closest-point baseline's) to score against."""
+    return getattr(module, "target_kind", "none") != "none" and len(module.target_a) > 0
+
+
 def reconstruction_metrics(module, mesh: trimesh.Trimesh, samples: int, seed: int) -> dict[str, Any]:
     """UCD (target → mesh, ``samples`` uniform target samples; all points of a cloud), its reverse
     (mesh → target) and their mean, in model units (the paper's [-0.5, 0.5]^3); None for an empty mesh."""
