@@ -12,9 +12,9 @@ comparable. ``--mass-refine 1`` evaluates with the plain mass estimate (``evalua
 ``--mass-rel-stderr`` with another stop (``evaluation.mass_rel_stderr``), ``--mass-refine-mesh 0|1`` without or
 with the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it), ``--mass-tube-radius 0``
 without the tube about Γ (``evaluation.mass_tube_radius``).
-A 2D run (``experiment=minimal_2d``) reports ``mass_length`` and ``curve_length``; the grid method's checkpoints are
-refused (no network to time). ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained
-200 steps.
+A 2D run (``experiment=minimal_2d``) reports ``mass_length`` and ``curve_length``, a reconstruction (its step timed
+with its surface loss) ``ucd`` too; the grid method's checkpoints are refused (no network to time).
+``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from omegaconf import OmegaConf
 import deepcurrents
 from deepcurrents.cli.common import exit_on_user_error
 from deepcurrents.experiments.runner import build
-from deepcurrents.losses import current_loss
 from deepcurrents.models.callbacks import MediaCallback
 from deepcurrents.models.current_module import CurrentModule
 from deepcurrents.models.loading import load_module, read_checkpoint
@@ -43,7 +42,7 @@ from bench_args import check_range  # noqa: E402  (a sibling module, not a packa
 
 # the final evaluation's numbers reported beside the seconds, by the run's dimension
 METRIC_KEYS = {3: ("mass_samples", "mass_evaluations", "mass_area", "mass_area_stderr", "mesh_area",
-                   "mass_area_sharpened"),
+                   "mass_area_sharpened", "ucd"),
                2: ("mass_samples", "mass_evaluations", "mass_length", "mass_length_stderr", "curve_length")}
 
 
@@ -56,9 +55,7 @@ def step_seconds(cfg, steps: int = 30, warm: int = 5) -> float:
     for i in range(warm + steps):
         if i == warm:
             start = time.perf_counter()
-        batch = next(batches)
-        _, omega = module.current(batch["x"], create_graph=True, alpha=batch.get("alpha"))
-        loss = current_loss(omega, batch.get("metric"), batch.get("weight"))
+        loss = module.compute_losses(next(batches))["loss"]  # a reconstruction's with its surface term
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -122,7 +119,7 @@ def measure(args: argparse.Namespace) -> None:
         "train_seconds": train,
         "evaluation_seconds": evaluation, "render_seconds": rendering,
         "evaluation_per_train": evaluation / train, "with_render_per_train": (evaluation + rendering) / train,
-        **{k: metrics.get(k) for k in METRIC_KEYS[2 if OmegaConf.select(cfg, "data.dim") == 2 else 3]},
+        **{k: metrics[k] for k in METRIC_KEYS[2 if OmegaConf.select(cfg, "data.dim") == 2 else 3] if k in metrics},
         "load": [load, os.getloadavg()[0]],
     }))
 

@@ -4,11 +4,16 @@ anything is measured, never a traceback or a nonsense number."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
-from conftest import load_benchmark
+from conftest import QUIET_CPU, TINY_EVAL, TINY_NET, compose_cfg, load_benchmark
+from omegaconf import OmegaConf
 
+from deepcurrents.experiments.runner import build, train
 from deepcurrents.models.base import CHECKPOINT_KEY
+from deepcurrents.models.loading import load_module
 
 
 def refused(monkeypatch, capsys, script: str, argv: list[str]) -> str:
@@ -65,3 +70,22 @@ def test_final_evaluation_cost_refuses_an_unusable_checkpoint_in_one_sentence(tm
     ]:
         line = refused(monkeypatch, capsys, "final_evaluation_cost", argv)
         assert line.startswith("error: ckpt_path=") and sentence in line, line
+
+
+@pytest.mark.slow
+def test_final_evaluation_cost_times_a_reconstruction_with_its_surface_loss(tmp_path, monkeypatch, capsys, cap_file):
+    """A reconstruction's checkpoint is a CurrentModule too: its training step is timed with its own losses (the
+    metric and the surface term, ``compute_losses``) and its UCD reported beside the seconds."""
+    cfg = compose_cfg(["experiment=recon_mesh", f"data.mesh={cap_file}", *TINY_NET, *QUIET_CPU, *TINY_EVAL,
+                       "data.num_surface_samples=64", "data.num_workers=0", "trainer.max_steps=3"])
+    trained = train(cfg, out_dir=tmp_path / "run")
+    bench = load_benchmark("final_evaluation_cost")
+    module = load_module(str(tmp_path / "run" / "checkpoints" / "last.ckpt"))
+    batch = next(iter(build(OmegaConf.create(module.run_config))[0].train_dataloader()))
+    assert set(module.compute_losses(batch)) >= {"loss", "current_loss", "surface_loss"}
+    monkeypatch.setattr("sys.argv", ["final_evaluation_cost.py", str(tmp_path / "run" / "checkpoints" / "last.ckpt")])
+    bench.main()
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert line["steps"] == 3 and line["seconds_per_step"] > 0 and 0 < line["evaluation_per_train"] < float("inf")
+    assert line["ucd"] == pytest.approx(trained["ucd"], rel=1e-6)  # the run's own final evaluation, again
+    assert "mass_area_sharpened" not in line  # a key the run does not write is left out, not null

@@ -120,9 +120,13 @@ class CurrentModule(DeepCurrentsModule):
     def dim(self) -> int:
         return self.current.dim
 
-    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+    def compute_losses(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """{"loss"}: the mass E|B ω| of one batch (importance weights and precomputed α where the batch has them)."""
         _, omega = self.current(batch["x"], create_graph=True, alpha=batch.get("alpha"))
-        loss = current_loss(omega, batch.get("metric"), batch.get("weight"))
+        return {"loss": current_loss(omega, batch.get("metric"), batch.get("weight"))}
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        loss = self.compute_losses(batch)["loss"]
         self.check_finite(loss)
         if self.logs_this_step():
             self.log("train/loss", loss, prog_bar=True)
