@@ -118,6 +118,19 @@ def test_losses_by_hand():
 
     f_minus, f_plus = torch.tensor([0.01, 0.02, 0.05]), torch.tensor([0.0, 0.0, 0.01])
     assert winding_loss(f_minus, f_plus, 0.015).item() == pytest.approx((0.0 + 0.005 + 0.025) / 3)
+    # level hinge: f(x) = −x_2 across the plane z = 0 (normal +z), ε = 0.02, reach 1/4 so f(y ∓ ε'n) = ±0.005; Γ's
+    # points at f = 0.001 and 0.003, so s = 0.002: the inner side clears s + m (0.005 − 0.002 ≥ m = 0.001), the outer
+    # side lies 0.007 below s; with m = 0.004 the inner side falls 0.001 short
+    from deepcurrents.losses import level_loss
+
+    batch = {"surface_points": torch.tensor([[0.3, 0.1, 0.0], [-0.2, 0.4, 0.0]]),
+             "surface_normals": torch.tensor([[0.0, 0, 1], [0.0, 0, 1]]), "epsilon": torch.tensor([0.02, 0.02])}
+    boundary = torch.tensor([[0.0, 0, -0.001], [1.0, 1, -0.003]])
+    plane = lambda x: -x[:, 2:]  # noqa: E731
+    assert level_loss(plane, batch, boundary, 0.001).item() == pytest.approx(0.0, abs=1e-9)
+    assert level_loss(plane, batch, boundary, 0.004).item() == pytest.approx(0.001, rel=1e-4)
+    # no jump at all (f constant) costs 2m, like the surface hinge's δ: never cheaper than a straddling drop
+    assert level_loss(lambda x: 0 * x[:, :1] + 0.5, batch, boundary, 0.004).item() == pytest.approx(0.008, rel=1e-6)
 
 
 def test_surface_hinge_of_a_batch_by_hand():

@@ -26,6 +26,7 @@ def test_cpu_preset_normalises_the_target_and_paper_keeps_the_authors_frame(expe
     if experiment == "recon_hand":
         assert cpu.model.optim.schedule == "cosine" and paper.model.optim.schedule == "step"
         assert paper.model.optim.lr == 1e-3 and paper.model.optim.step_size == 2000
+        assert cpu.model.level_weight == 1.0 and paper.model.level_weight == 0.0  # the authors' losses alone
 
 
 def test_table1_compares_ucds_in_the_target_files_units():
@@ -106,3 +107,46 @@ def test_mass_weight_needs_uniform_ambient_samples(parts_root):
         validate_config(cfg)
     with pytest.raises(ConfigError, match="model.mass_weight=-1"):
         build(compose_cfg(["experiment=recon_hand", f"data.root={parts_root}", *TINY, "model.mass_weight=-1"]))
+
+
+def test_level_weight_adds_the_level_hinge_about_the_boundarys_level(parts_root):
+    """loss = … + λ·E_y[(m − (f(y − εn/4) − s))^+ + (m + (f(y + εn/4) − s))^+], m = δ/4, s the mean of f over Γ by
+    arc length (here a fine quadrature of its own, against the module's Γ points 0.01 apart); the term has a gradient
+    and goes with level_weight = 0; a negative weight is refused in one sentence."""
+    import torch
+
+    from deepcurrents.errors import ConfigError
+
+    cfg = compose_cfg(["experiment=recon_hand", f"data.root={parts_root}", *TINY, "model.level_weight=0.5"])
+    datamodule, module = build(cfg)
+    datamodule.setup("fit")
+    batch = next(iter(datamodule.train_dataloader()))
+    torch.manual_seed(0)
+    with torch.no_grad():  # the output starts at zero (f ≡ 0, every hinge at 2m): a field that varies
+        for p in module.current.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    losses = module.compute_losses(batch)
+    with torch.no_grad():
+        quadrature, lengths = [], []
+        for loop in module.current.loops:
+            a = loop.double()
+            b = torch.roll(a, -1, 0)
+            t = torch.linspace(0, 1, 201, dtype=torch.float64)[:-1] + 1 / 400  # midpoints of 200 pieces a side
+            pts = (a[:, None] + t[None, :, None] * (b - a)[:, None]).reshape(-1, 3)
+            quadrature.append(module.current.f(pts.float()).reshape(len(a), -1).mean(1))
+            lengths.append((b - a).norm(dim=1))
+        s = float((torch.cat(quadrature).double() * torch.cat(lengths)).sum() / torch.cat(lengths).sum())
+        offset = (batch["epsilon"] / 4).unsqueeze(-1) * batch["surface_normals"]
+        inner = module.current.f(batch["surface_points"] - offset).reshape(-1).double()
+        outer = module.current.f(batch["surface_points"] + offset).reshape(-1).double()
+        m = cfg.model.surface_margin / 4
+        expected = float((torch.relu(m - (inner - s)) + torch.relu(m + (outer - s))).mean())
+    assert 0 < expected and float(losses["level_loss"]) == pytest.approx(expected, rel=2e-2)
+    assert float(losses["loss"]) == pytest.approx(float(losses["current_loss"]) + float(losses["surface_loss"])
+                                                  + 0.5 * float(losses["level_loss"]), rel=1e-6)
+    losses["level_loss"].backward()
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in module.parameters())
+    module.level_weight = 0.0
+    assert "level_loss" not in module.compute_losses(batch)
+    with pytest.raises(ConfigError, match="model.level_weight=-1"):
+        build(compose_cfg(["experiment=recon_hand", f"data.root={parts_root}", *TINY, "model.level_weight=-1"]))

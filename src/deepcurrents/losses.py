@@ -56,6 +56,21 @@ def surface_values(f: Callable[[torch.Tensor], torch.Tensor],
     return f_minus.flatten(), f_plus.flatten()
 
 
+def level_loss(f: Callable[[torch.Tensor], torch.Tensor], batch: dict[str, torch.Tensor], boundary: torch.Tensor,
+               margin: float, reach: float = 0.25) -> torch.Tensor:
+    """The level hinge (beyond the paper): E_y[(m − (f(y − ε'n) − s))^+ + (m + (f(y + ε'n) − s))^+], ε' = reach·ε,
+    s the mean of f over points of Γ (the level the mesher takes, ``meshing.level_set``). The surface hinge only asks f
+    to drop by δ across [y − εn, y + εn], which leaves where in that window the level f = s lies free; this one asks
+    the drop to straddle s within ±ε' of the target. Like the surface hinge it costs 2m where f has no jump at all (a
+    penalty on |f(y) − s| instead rewarded that: the surface vanished). batch: "surface_points" y (M, 3),
+    "surface_normals" n (M, 3), "epsilon" (M,); boundary (P, 3) → scalar."""
+    offset = (reach * batch["epsilon"]).unsqueeze(-1) * batch["surface_normals"]
+    y = batch["surface_points"]
+    values = f(torch.cat([y - offset, y + offset, boundary])).reshape(-1)
+    inner, outer, level = values[:len(y)], values[len(y):2 * len(y)], values[2 * len(y):].mean()
+    return (torch.relu(margin - (inner - level)) + torch.relu(margin + (outer - level))).mean()
+
+
 def surface_hinge(f: Callable[[torch.Tensor], torch.Tensor], batch: dict[str, torch.Tensor],
                   margin: float = 0.01) -> torch.Tensor:
     """``surface_loss`` of a batch's surface samples (``surface_values``). → scalar."""

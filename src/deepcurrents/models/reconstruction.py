@@ -17,7 +17,8 @@ from deepcurrents.eval.meshing import flux_sign, region_of_interest
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface, unidirectional_chamfer
 from deepcurrents.eval.plots import MeshView, mesh_view, plot_mesh
 from deepcurrents.geometry.meshes import write_mesh
-from deepcurrents.losses import current_loss, surface_hinge
+from deepcurrents.geometry.polyline import closed_loop_segments, resample_polyline
+from deepcurrents.losses import current_loss, level_loss, surface_hinge
 from deepcurrents.models.current_module import CurrentModule
 
 
@@ -119,21 +120,26 @@ class ReconstructionModule(CurrentModule):
         mass_weight: λ of a Euclidean mass term λ E|ω| at the ambient samples (beyond the paper; 0 = the paper):
             B_x = w(I − n nᵀ) leaves ω along the closest normal free off Σ, so without it a sheet parallel to
             the target (inside a nearly closed head) costs nothing.
+        level_weight: weight of ``losses.level_loss`` (beyond the paper; 0 = the paper): the drop of f straddles the
+            mesher's level s within ±ε/4 of the target, by δ/4 on each side.
     """
 
     def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
                  evaluation: dict | None = None, target: dict | None = None, surface_weight: float = 1.0,
-                 surface_margin: float = 0.01, grid_encoding: dict | None = None, mass_weight: float = 0.0):
+                 surface_margin: float = 0.01, grid_encoding: dict | None = None, mass_weight: float = 0.0,
+                 level_weight: float = 0.0):
         super().__init__(boundary, net, optim, rff, evaluation, grid_encoding)
         self.save_hyperparameters(ignore=["target"])  # the geometry lives in buffers, not in hparams
         self.surface_weight = number_at_least("model.surface_weight", surface_weight)
         self.surface_margin = number_at_least("model.surface_margin", surface_margin, strict=True)
         self.mass_weight = number_at_least("model.mass_weight", mass_weight)
+        self.level_weight = number_at_least("model.level_weight", level_weight)
+        self._gamma_points: torch.Tensor | None = None
         TargetGeometry.register(self, target)
 
     def compute_losses(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """{"loss", "current_loss"[, "mass_loss"][, "surface_loss"]} of one batch: L_curr(B) + λ·E|ω| (with
-        ``mass_weight``) + surface_weight·L_surf."""
+        """{"loss", "current_loss"[, "mass_loss"][, "surface_loss"][, "level_loss"]} of one batch: L_curr(B) + λ·E|ω|
+        (with ``mass_weight``) + surface_weight·L_surf + level_weight·L_level."""
         _, omega = self.current(batch["x"], create_graph=True)
         out = {"current_loss": current_loss(omega, batch.get("metric"))}
         loss = out["current_loss"]
@@ -146,8 +152,19 @@ class ReconstructionModule(CurrentModule):
         if "surface_points" in batch and self.surface_weight > 0:
             out["surface_loss"] = surface_hinge(self.current.f, batch, self.surface_margin)
             loss = loss + self.surface_weight * out["surface_loss"]
+        if "surface_points" in batch and self.level_weight > 0:
+            out["level_loss"] = level_loss(self.current.f, batch, self.boundary_points(), self.surface_margin / 4)
+            loss = loss + self.level_weight * out["level_loss"]
         out["loss"] = loss
         return out
+
+    def boundary_points(self, spacing: float = 0.01) -> torch.Tensor:
+        """Γ resampled every ``spacing`` (P, 3), on the module's device; made once (Γ is fixed)."""
+        if self._gamma_points is None or self._gamma_points.device != self.current.loops[0].device:
+            starts, ends, _ = closed_loop_segments([lp.detach().cpu().double().numpy() for lp in self.current.loops])
+            self._gamma_points = torch.as_tensor(resample_polyline(starts, ends, spacing), dtype=torch.float32,
+                                                 device=self.current.loops[0].device)
+        return self._gamma_points
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         losses = self.compute_losses(batch)
@@ -156,7 +173,7 @@ class ReconstructionModule(CurrentModule):
         if self.logs_this_step():
             self.log("train/loss", loss, prog_bar=True)
             self.log("train/current_loss", losses["current_loss"], prog_bar=True)
-            for key in ("surface_loss", "mass_loss"):
+            for key in ("surface_loss", "mass_loss", "level_loss"):
                 if key in losses:
                     self.log(f"train/{key}", losses[key])
             self.log("train/lr", self.trainer.optimizers[0].param_groups[0]["lr"])
