@@ -372,6 +372,38 @@ def test_winding_weight_adds_the_cap_on_the_drop_across_the_surface(family_dir, 
             build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + [f"model.winding_reach={bad}"]))
 
 
+def test_level_weight_adds_each_shapes_level_hinge(family_dir, tmp_path):
+    """model.level_weight=λ: loss += λ·mean over the batch's shapes and surface samples of
+    (m − (f(y − εn/4) − s))^+ + (m + (f(y + εn/4) − s))^+, m = δ/4, s each shape's own mean of f over its loops'
+    vertices (padding left out), with f the shape's own; computed here shape by shape; a negative weight is refused."""
+    cfg = compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.level_weight=0.5"])
+    datamodule, module = build(cfg)
+    datamodule.setup("fit")
+    batch = next(iter(datamodule.train_dataloader()))
+    torch.manual_seed(0)
+    for p in module.family.mlp.parameters():  # f varies (the output starts at zero)
+        p.data.normal_(0.0, 0.5)
+    losses = module.compute_losses(batch)
+    code = module.family.code(module.family.latents(batch["index"]), batch["loops"], batch["loop_mask"])
+    m = cfg.model.surface_margin / 4
+    terms = []
+    with torch.no_grad():
+        for i in range(len(batch["index"])):
+            f = lambda x, i=i: module.family.f(x[None], code[i:i + 1])[0]  # noqa: E731
+            gamma = batch["loops"][i][batch["loop_mask"][i]]  # (P_i, 3): the real vertices only
+            s = f(gamma).mean()
+            offset = (batch["epsilon"][i] / 4)[:, None] * batch["surface_normals"][i]
+            inner, outer = f(batch["surface_points"][i] - offset), f(batch["surface_points"][i] + offset)
+            terms.append(torch.relu(m - (inner - s)) + torch.relu(m + (outer - s)))
+    expected = torch.cat(terms).mean()
+    assert float(expected) > 0
+    torch.testing.assert_close(losses["level_loss"].detach(), expected, rtol=1e-5, atol=1e-8)
+    rest = losses["current_loss"] + cfg.model.surface_weight * losses["surface_loss"]
+    torch.testing.assert_close(losses["loss"], rest + 0.5 * losses["level_loss"])
+    with pytest.raises(ConfigError, match=r"model.level_weight=-1 must be (a )?non-negative"):
+        build(compose_cfg(tiny_overrides(family_dir, tmp_path, 5) + ["model.level_weight=-1"]))
+
+
 def test_winding_loss_by_hand():
     """Drops 0, J/2, J, 2J across the target: only 2J's excess J is charged, a mean of J/4."""
     from deepcurrents.losses import winding_loss

@@ -57,17 +57,24 @@ def surface_values(f: Callable[[torch.Tensor], torch.Tensor],
 
 
 def level_loss(f: Callable[[torch.Tensor], torch.Tensor], batch: dict[str, torch.Tensor], boundary: torch.Tensor,
-               margin: float, reach: float = 0.25) -> torch.Tensor:
+               margin: float, reach: float = 0.25, boundary_mask: torch.Tensor | None = None) -> torch.Tensor:
     """The level hinge (beyond the paper): E_y[(m − (f(y − ε'n) − s))^+ + (m + (f(y + ε'n) − s))^+], ε' = reach·ε,
     s the mean of f over points of Γ (the level the mesher takes, ``meshing.level_set``). The surface hinge only asks f
     to drop by δ across [y − εn, y + εn], which leaves where in that window the level f = s lies free; this one asks
     the drop to straddle s within ±ε' of the target. Like the surface hinge it costs 2m where f has no jump at all (a
     penalty on |f(y) − s| instead rewarded that: the surface vanished). batch: "surface_points" y (M, 3),
-    "surface_normals" n (M, 3), "epsilon" (M,); boundary (P, 3) → scalar."""
+    "surface_normals" n (M, 3), "epsilon" (M,); boundary (P, 3) → scalar. A family: y, n (S, M, 3), ε (S, M), each
+    shape's Γ points (S, P, 3) with ``boundary_mask`` (S, P) (padding False), f (S, N, 3) → (S, N): s per shape."""
     offset = (reach * batch["epsilon"]).unsqueeze(-1) * batch["surface_normals"]
     y = batch["surface_points"]
-    values = f(torch.cat([y - offset, y + offset, boundary])).reshape(-1)
-    inner, outer, level = values[:len(y)], values[len(y):2 * len(y)], values[2 * len(y):].mean()
+    count = y.shape[-2]
+    values = f(torch.cat([y - offset, y + offset, boundary], dim=-2)).reshape(*y.shape[:-2], -1)
+    inner, outer, gamma = values[..., :count], values[..., count:2 * count], values[..., 2 * count:]
+    if boundary_mask is None:
+        level = gamma.mean(-1, keepdim=True)
+    else:
+        weight = boundary_mask.to(gamma.dtype)
+        level = (gamma * weight).sum(-1, keepdim=True) / weight.sum(-1, keepdim=True)
     return (torch.relu(margin - (inner - level)) + torch.relu(margin + (outer - level))).mean()
 
 

@@ -31,7 +31,7 @@ from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import jump, mesh_summary, unidirectional_chamfer
 from deepcurrents.eval.plots import plot_mesh_pairs
 from deepcurrents.geometry.meshes import write_mesh
-from deepcurrents.losses import current_loss, surface_loss, surface_values, winding_loss
+from deepcurrents.losses import current_loss, level_loss, surface_loss, surface_values, winding_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
 
@@ -132,6 +132,7 @@ class AutodecoderModule(DeepCurrentsModule):
         mass_weight: float = 0.0,
         winding_weight: float = 0.0,
         winding_reach: float = 1.0,
+        level_weight: float = 0.0,
         interpolation_weight: float = 0.0,
         interpolation_mix: str = "shared",
         interpolation_sampling: dict | None = None,
@@ -151,6 +152,7 @@ class AutodecoderModule(DeepCurrentsModule):
             raise ConfigError(f"model.num_shapes={num_shapes} does not match the {len(shape_names)} shape names.")
         for key, value in (("surface_weight", surface_weight), ("interpolation_weight", interpolation_weight),
                            ("mass_weight", mass_weight), ("winding_weight", winding_weight),
+                           ("level_weight", level_weight),
                            ("latent_std", latent_std)):  # 0: every code starts at the origin
             number_at_least(f"model.{key}", value)
         number_at_least("model.latent_lr_factor", latent_lr_factor, strict=True)
@@ -328,6 +330,12 @@ class AutodecoderModule(DeepCurrentsModule):
                                                      {**batch, "epsilon": reach * batch["epsilon"]})
                 losses["winding_loss"] = winding_loss(f_minus, f_plus, jump(3) * self.family.alpha_scale)
                 loss = loss + self.hparams.winding_weight * losses["winding_loss"]
+        if "surface_points" in batch and self.hparams.get("level_weight", 0.0) > 0:  # checkpoints before the key: 0
+            # each shape's own loop vertices as its Γ points (their mean, not by arc length: the loops' vertices
+            # lie about evenly along them), padding masked
+            losses["level_loss"] = level_loss(lambda points: self.family.f(points, code), batch, loops.flatten(1, 2),
+                                              self.hparams.surface_margin / 4, boundary_mask=mask.flatten(1, 2))
+            loss = loss + self.hparams.level_weight * losses["level_loss"]
         if self.hparams.interpolation_weight > 0 and self.training:
             interpolation = self.interpolation_loss(z, loops, mask, batch["x"].shape[1],
                                                     batch.get("surface_points"))
