@@ -63,11 +63,11 @@ def test_spherical_cap_is_reconstructed(tmp_path, cap_file):
     # (preset=cpu normalised the cap: the app compares in the run's frame and gives the file's units too)
     assert again["ucd_input_units"] == pytest.approx(metrics["ucd_input_units"], rel=1e-6)
     # without target=, the target the checkpoint carries: the run's own UCD and its reverse, digit for digit
-    cfg.target, cfg.out_dir = None, str(tmp_path / "own")
+    # (and, samples unset, the run's own evaluation.ucd_samples)
+    cfg.target, cfg.out_dir, cfg.samples = None, str(tmp_path / "own"), None
     own = evaluate_checkpoint(cfg)
-    assert own["ucd"] == pytest.approx(metrics["ucd"], rel=1e-6)
-    assert own["ucd_reverse"] == pytest.approx(metrics["ucd_reverse"], rel=1e-6)
-    assert own["ucd_input_units"] == pytest.approx(metrics["ucd_input_units"], rel=1e-6)
+    for key in ("ucd", "ucd_reverse", "ucd_input_units", "ucd_reverse_input_units"):
+        assert own[key] == pytest.approx(metrics[key], rel=1e-6), key
 
 
 def test_normalised_mesh_is_written_back_in_input_coordinates(tmp_path):

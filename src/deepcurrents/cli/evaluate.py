@@ -12,7 +12,8 @@ Writes ``metrics.json`` (in a folder named after the checkpoint beside it, or ``
 
 A run that normalised its curve or target (data.normalize): ``target=`` and ``mesh=`` are in the input's units (as
 the run's own mesh.ply) and move into the model's frame, where the numbers are computed, as the run's were;
-``ucd_input_units`` gives the UCD in the files' units, and the mesh written here is in the input's units.
+``ucd_input_units`` and ``ucd_reverse_input_units`` give the distances in the files' units, and the mesh written here
+is in the input's units.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from deepcurrents.eval.metrics import (
 from deepcurrents.geometry.meshes import read_mesh, write_mesh
 from deepcurrents.models.current_module import input_mesh
 from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
-from deepcurrents.models.reconstruction import carries_target, reconstruction_metrics
+from deepcurrents.models.reconstruction import carries_target, input_unit_distances, reconstruction_metrics
 
 log = logging.getLogger("deepcurrents.evaluate")
 
@@ -54,7 +55,8 @@ class EvaluateConfig:
     device: str = "auto"
     shape: int | None = None  # families: which training shape (default 0)
     resolution: int | None = None  # marching cubes (default: the run's evaluation.mesh.resolution)
-    samples: int = 100_000  # uniform samples of each surface for the Chamfer distances
+    samples: int | None = None  # uniform samples of each surface for the Chamfer distances (None: the run's
+    # evaluation.ucd_samples, 100000 by default)
     mass_samples: int | None = None  # None: the run's evaluation.mass_samples and mass_rel_stderr stop
     seed: int | None = None  # None: the run's evaluation.seed
 
@@ -64,7 +66,8 @@ register_app("evaluate", EvaluateConfig, __doc__)
 
 def evaluate_checkpoint(cfg: DictConfig) -> dict:
     """The app's body. → the metrics written to metrics.json."""
-    samples = positive_int("samples", cfg.samples)
+    if cfg.samples is not None:
+        positive_int("samples", cfg.samples)
     if cfg.mass_samples is not None:
         positive_int("mass_samples", cfg.mass_samples)
     if cfg.resolution is not None:
@@ -79,6 +82,7 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
     # unset sizes and seed from the run's own evaluation settings, so `loss` matches its metrics.json
     evaluation = run_evaluation(module)
     seed = int(cfg.seed) if cfg.seed is not None else int(evaluation.get("seed", 0))
+    samples = int(cfg.samples) if cfg.samples is not None else int(evaluation.get("ucd_samples", 100_000))
     mesh = None
     # a run that normalised its curve or target: files given here are in the input's units, as the run's mesh.ply
     # is, and move into the model's frame, where the current's numbers are
@@ -126,15 +130,12 @@ def evaluate_checkpoint(cfg: DictConfig) -> dict:
                 ucd = unidirectional_chamfer(target, mesh, samples, seed)
                 reverse = unidirectional_chamfer(mesh, target, samples, seed)
                 metrics.update(ucd=ucd, ucd_reverse=reverse, chamfer=0.5 * (ucd + reverse))
-                if frame is not None:
-                    metrics["ucd_input_units"] = ucd * frame[0]
         elif carries_target(module):  # the run's own target, in the model's frame, scored as the run scored it
-            # the source file's name lives in the run's metrics, not in the checkpoint's tensors
-            metrics["target"] = module.target_source or "the checkpoint's own"
+            metrics["target"] = "the checkpoint's own"  # its file's name is in the run's metrics.json, not the tensors
             log.info("No target= given: the mesh is scored against the target this checkpoint carries.")
             metrics.update(reconstruction_metrics(module, mesh, samples, seed))
-            if frame is not None and metrics["ucd"] is not None:
-                metrics["ucd_input_units"] = metrics["ucd"] * frame[0]
+        if frame is not None and "ucd" in metrics:
+            metrics.update(input_unit_distances(metrics, frame[0]))
     (out / "metrics.json").write_text(metrics_json(metrics))
     return metrics
 

@@ -330,7 +330,7 @@ class AutodecoderModule(DeepCurrentsModule):
                                                      {**batch, "epsilon": reach * batch["epsilon"]})
                 losses["winding_loss"] = winding_loss(f_minus, f_plus, jump(3) * self.family.alpha_scale)
                 loss = loss + self.hparams.winding_weight * losses["winding_loss"]
-        if "surface_points" in batch and self.hparams.get("level_weight", 0.0) > 0:  # checkpoints before the key: 0
+        if "surface_points" in batch and self.hparams.level_weight > 0:
             # each shape's own loop vertices as its Γ points (their mean, not by arc length: the loops' vertices
             # lie about evenly along them), padding masked
             losses["level_loss"] = level_loss(lambda points: self.family.f(points, code), batch, loops.flatten(1, 2),

@@ -106,6 +106,14 @@ def reconstruction_metrics(module, mesh: trimesh.Trimesh, samples: int, seed: in
     return out
 
 
+def input_unit_distances(metrics: dict[str, Any], scale: float) -> dict[str, float]:
+    """``ucd`` and ``ucd_reverse`` of ``metrics`` in the target file's units (a normalised run's model frame scaled
+    back by ``scale``); {} where the mesh was empty."""
+    if metrics.get("ucd") is None:
+        return {}
+    return {"ucd_input_units": metrics["ucd"] * scale, "ucd_reverse_input_units": metrics["ucd_reverse"] * scale}
+
+
 class ReconstructionModule(CurrentModule):
     """DeepCurrents for one target surface. Training: L = L_curr(B) + surface_weight · L_surf (paper §4.2,
     the authors' weight 1); batches come from ``ReconstructionDataModule`` (metric and surface samples
@@ -212,9 +220,8 @@ class ReconstructionModule(CurrentModule):
         metrics.update(reconstruction_metrics(self, mesh, samples, seed))
         frame = TargetGeometry.frame(self)
         scale = frame[0] if frame is not None else 1.0
-        if frame is not None and metrics["ucd"] is not None:  # a shift alone too: every normalised run has the keys
-            metrics["ucd_input_units"] = metrics["ucd"] * scale
-            metrics["ucd_reverse_input_units"] = metrics["ucd_reverse"] * scale
+        if frame is not None:  # a shift alone too: every normalised run has the keys
+            metrics.update(input_unit_distances(metrics, scale))
         if frame is not None:
             # the mesh and Γ in the input's coordinates, so that they compare with the user's file
             write_mesh(trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
