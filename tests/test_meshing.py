@@ -677,3 +677,33 @@ def test_a_grid_that_aliases_the_phase_away_from_gamma_is_meshed_finer(monkeypat
             assert result.mesh.area == pytest.approx(extract_surface(current, resolution=36).mesh.area, rel=1e-12)
         else:
             assert result.mesh.area == plain.mesh.area and "instead" not in caplog.text
+
+
+def test_a_level_set_whose_newton_steps_drag_vertices_across_cells_is_meshed_finer(monkeypatch, caplog):
+    """Level set: where Newton moves more than DRAGGED_SHARE of the marched vertices by more than half a cell onto
+    f = s (f's jump thinner than the grid: spikes on a 180-s hand reconstruction at 96³), extract_surface meshes once
+    more at 1.5× the resolution; the smooth cup's own vertices move less, and it meshes as before."""
+    import logging
+
+    from deepcurrents.eval.meshing.method import MeshMethod
+
+    cup = SealedCup()
+    bounds = np.array([[-0.4, -0.4, -0.12], [0.4, 0.4, 0.7]])
+    with caplog.at_level(logging.INFO):
+        plain = extract_surface(cup, resolution=40, bounds=bounds, method="level_set")
+    assert "instead" not in caplog.text
+    newton, calls = MeshMethod.newton, []
+
+    def dragging(self, verts, max_step, steps):  # the first meshing's vertices land 0.6 cells away
+        calls.append(max_step)
+        out = newton(self, verts, max_step, steps)
+        return out + (0.6 * max_step if len(calls) == 1 else 0.0)
+
+    monkeypatch.setattr(MeshMethod, "newton", dragging)
+    caplog.clear()
+    with caplog.at_level(logging.INFO):
+        refined = extract_surface(cup, resolution=40, bounds=bounds, method="level_set")
+    assert len(calls) == 2 and calls[1] < calls[0] and "meshed at 60 instead" in caplog.text
+    monkeypatch.setattr(MeshMethod, "newton", newton)
+    finer = extract_surface(cup, resolution=60, bounds=bounds, method="level_set")
+    assert refined.mesh.area == pytest.approx(finer.mesh.area, rel=1e-12) and refined.mesh.area != plain.mesh.area

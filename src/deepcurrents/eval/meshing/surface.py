@@ -126,6 +126,9 @@ def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.nd
 # at resolutions 256 and 384 (peak RSS less the process's own); the check uses a little less, so that it refuses
 # only grids that cannot fit.
 NODE_BYTES = 100
+# the level set is meshed once more at 1.5× where Newton moved more than this share of the marched vertices by more
+# than half a cell (extract_surface)
+DRAGGED_SHARE = 0.01
 
 
 def grid_shape(bounds: np.ndarray, resolution: int, key: str = "resolution") -> tuple[tuple[int, int, int], float]:
@@ -200,7 +203,9 @@ def extract_surface(
             a turn between two nodes away from Γ (``grid_angle.aliased_edges``), mesh once more at 1.5× the
             resolution (if that grid fits in memory), said in the log: marching cubes loses the sheet at such
             edges (a sharpened catenoid at 128³: holes, +19 % of area; at 192³ closed, +0.6 %). Grids without
-            such edges (the trained trefoils of ``make run`` and of 300 vertices, at 128³) mesh as before.
+            such edges (the trained trefoils of ``make run`` and of 300 vertices, at 128³) mesh as before. Level set:
+            where Newton moves more than ``DRAGGED_SHARE`` of the marched vertices by more than half a cell (f's jump
+            thinner than the grid, spikes: a 180-s hand reconstruction at 96³), the same.
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
@@ -213,26 +218,34 @@ def extract_surface(
     closed_area = 0.0
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
     tube = max(boundary_tube, 1.5 * voxel) if close_boundary else 0.0
+
+    def finer_resolution(why: str) -> int | None:
+        """1.5× the resolution, or None (said in a warning) where that grid does not fit in memory. ``why``: what
+        this grid showed."""
+        finer = math.ceil(1.5 * resolution)
+        try:
+            grid_shape(bounds, finer, resolution_key)  # the memory check only
+        except ConfigError:
+            log.warning("%s of the %s=%d grid, so its mesh may be wrong there; %s=%d does not fit in memory.",
+                        why, resolution_key, resolution, resolution_key, finer)
+            return None
+        return finer
+
+    def mesh_finer(finer: int, why: str, harm: str) -> MeshingResult:
+        log.info("%s of the %s=%d grid, where marching cubes %s: meshed at %d instead.", why, resolution_key,
+                 resolution, harm, finer)
+        return extract_surface(current, finer, delta, boundary_tube, bounds, padding, newton_steps, min_component,
+                               min_alignment, close_boundary, method, strip_rows, level_blend, chunk_size,
+                               resolution_key, refine_aliased=False)
+
     aliased = getattr(finder, "aliased_points", None)
     if refine_aliased and aliased is not None and len(aliased):
         starts, ends, _ = closed_loop_segments(loops)  # next to Γ Ω/2 turns fast anyway, and the tube is cut
         count = int((segment_distance(aliased, starts, ends) > max(tube, boundary_tube) + 2.0 * voxel).sum())
-        finer = math.ceil(1.5 * resolution)
-        if count:
-            try:
-                grid_shape(bounds, finer, resolution_key)  # the memory check only
-            except ConfigError:
-                log.warning("At %d edges of the %s=%d grid the current's phase turns by more than half a turn "
-                            "between nodes, so its mesh may have holes there; %s=%d does not fit in memory.",
-                            count, resolution_key, resolution, resolution_key, finer)
-            else:
-                log.info("At %d edges of the %s=%d grid the current's phase turns by more than half a turn between "
-                         "nodes (its jump only a few cells thick), where marching cubes would lose the sheet: meshed "
-                         "at %d instead.", count, resolution_key, resolution, finer)
-                del vol, finder
-                return extract_surface(current, finer, delta, boundary_tube, bounds, padding, newton_steps,
-                                       min_component, min_alignment, close_boundary, method, strip_rows,
-                                       level_blend, chunk_size, resolution_key, refine_aliased=False)
+        why = f"The current's phase turns by more than half a turn between nodes at {count} edges"
+        if count and (finer := finer_resolution(why)) is not None:
+            del vol, finder
+            return mesh_finer(finer, why, "would lose the sheet (its jump only a few cells thick)")
     widened = tube > boundary_tube  # by the voxels: the border is cut and closed at this coarse a scale
     if widened and (resolution_key, resolution, round(voxel, 9)) not in _WIDENED_SAID:  # once, not per member
         _WIDENED_SAID.add((resolution_key, resolution, round(voxel, 9)))
@@ -281,7 +294,18 @@ def extract_surface(
     verts, faces = verts[used], remap[faces]
 
     if tube > 0 and newton_steps > 0:
-        verts = finder.newton(verts, voxel, newton_steps)
+        marched, verts = verts, finder.newton(verts, voxel, newton_steps)
+        # the level set's own aliasing check: where f's jump is thinner than a cell, the marched surface misses the
+        # level set and Newton drags its vertices across cells, raising spikes (a 180-s hand reconstruction at 96³:
+        # 11 % of its vertices moved more than half a cell, UCD 0.00178 and 1.07× the target's area; at 192³ none,
+        # 0.00125 and 0.96×; every 1000-step part and minimal surface measured: none)
+        dragged = float((np.linalg.norm(verts - marched, axis=1) > 0.5 * voxel).mean())
+        why = (f"Newton moved {100 * dragged:.0f} % of the marched vertices more than half a cell onto the level set "
+               "(f's jump thinner than the grid)")
+        if refine_aliased and method == "level_set" and dragged > DRAGGED_SHARE and \
+                (finer := finer_resolution(why)) is not None:
+            del vol, finder, marched, verts, faces
+            return mesh_finer(finer, why, "raises spikes")
     if flux_sign(current, verts, faces, chunk_size) < 0:
         faces = faces[:, ::-1].copy()
     zipped = 0
