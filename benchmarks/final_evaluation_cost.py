@@ -13,7 +13,7 @@ comparable. ``--mass-refine 1`` evaluates with the plain mass estimate (``evalua
 with the final mesh's cells refined (``evaluation.mass_refine_mesh``; ``recipe=sharp`` has it), ``--mass-tube-radius 0``
 without the tube about Γ (``evaluation.mass_tube_radius``).
 A 2D run (``experiment=minimal_2d``) reports ``mass_length`` and ``curve_length``, a reconstruction (its step timed
-with its surface loss) ``ucd`` too; the grid method's checkpoints are refused (no network to time).
+with its own losses) ``ucd`` too; the grid method's checkpoints are refused (no network to time).
 ``benchmarks/time_to_quality.py --eval-cost`` does the same for a current trained 200 steps.
 """
 
@@ -55,7 +55,7 @@ def step_seconds(cfg, steps: int = 30, warm: int = 5) -> float:
     for i in range(warm + steps):
         if i == warm:
             start = time.perf_counter()
-        loss = module.compute_losses(next(batches))["loss"]  # a reconstruction's with its surface term
+        loss = module.compute_losses(next(batches))["loss"]  # the module's own losses (a reconstruction's too)
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -222,7 +222,6 @@ class ReconstructionModule(CurrentModule):
         scale = frame[0] if frame is not None else 1.0
         if frame is not None:  # a shift alone too: every normalised run has the keys
             metrics.update(input_unit_distances(metrics, scale))
-        if frame is not None:
             # the mesh and Γ in the input's coordinates, so that they compare with the user's file
             write_mesh(trimesh.Trimesh(TargetGeometry.to_input(self, np.asarray(mesh.vertices)), mesh.faces,
                                        process=False), out_dir / "mesh.ply")

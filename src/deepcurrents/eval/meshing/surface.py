@@ -299,13 +299,13 @@ def extract_surface(
         # level set and Newton drags its vertices across cells, raising spikes (a 180-s hand reconstruction at 96³:
         # 11 % of its vertices moved more than half a cell, UCD 0.00178 and 1.07× the target's area; at 192³ none,
         # 0.00125 and 0.96×; every 1000-step part and minimal surface measured: none)
-        dragged = float((np.linalg.norm(verts - marched, axis=1) > 0.5 * voxel).mean())
-        why = (f"Newton moved {100 * dragged:.0f} % of the marched vertices more than half a cell onto the level set "
-               "(f's jump thinner than the grid)")
-        if refine_aliased and method == "level_set" and dragged > DRAGGED_SHARE and \
-                (finer := finer_resolution(why)) is not None:
-            del vol, finder, marched, verts, faces
-            return mesh_finer(finer, why, "raises spikes")
+        if refine_aliased and method == "level_set":
+            dragged = float((np.linalg.norm(verts - marched, axis=1) > 0.5 * voxel).mean())
+            why = (f"Newton moved {100 * dragged:.0f} % of the marched vertices more than half a cell onto the level "
+                   "set (f's jump thinner than the grid)")
+            if dragged > DRAGGED_SHARE and (finer := finer_resolution(why)) is not None:
+                del vol, finder, marched, verts, faces
+                return mesh_finer(finer, why, "raises spikes")
     if flux_sign(current, verts, faces, chunk_size) < 0:
         faces = faces[:, ::-1].copy()
     zipped = 0
