@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from deepcurrents.data.human_parts import CATEGORIES, anny_model, anny_parts
+from deepcurrents.data.human_parts import CATEGORIES
+from deepcurrents.data.human_parts_builder import anny_model, anny_parts
 from deepcurrents.data.targets import mesh_boundary_loops
 
 

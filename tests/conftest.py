@@ -189,7 +189,7 @@ def cap_file(tmp_path_factory) -> Path:
 def parts_root(tmp_path_factory) -> Path:
     """A tiny human-part-like dataset in the generator's layout, root/anny/<category>/000.ply: one small
     cap per category (`data.root=<this>` makes every recon_<part> experiment runnable)."""
-    from deepcurrents.data.human_parts import write_parts
+    from deepcurrents.data.human_parts_builder import write_parts
 
     root = tmp_path_factory.mktemp("parts")
     cap = spherical_cap(height=0.2, subdivisions=2)

@@ -208,7 +208,7 @@ def test_evaluate_gives_the_known_distance_of_a_known_pair(run, tmp_path):
 
 @pytest.mark.slow
 def test_cli_prints_one_sentence_for_bad_input(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "deepcurrents.extract", f"ckpt_path={tmp_path / 'x.ckpt'}"],
+    proc = subprocess.run([sys.executable, "-m", "deepcurrents.cli.extract", f"ckpt_path={tmp_path / 'x.ckpt'}"],
                           capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert proc.returncode == 2
     assert proc.stderr.strip() == f"error: ckpt_path='{tmp_path / 'x.ckpt'}' does not exist."
@@ -511,12 +511,12 @@ def test_an_apps_stdout_is_its_json_summary_and_its_log_lines_go_to_stderr(run, 
     """Warnings went to stdout between the printed JSON's lines, so `… | jq` and json.load failed on it."""
     from conftest import run_command_in_process
 
-    proc = run_command_in_process("deepcurrents.extract", [f"ckpt_path={run / 'checkpoints' / 'last.ckpt'}",
+    proc = run_command_in_process("deepcurrents.cli.extract", [f"ckpt_path={run / 'checkpoints' / 'last.ckpt'}",
                                                             "resolution=12", f"out_dir={tmp_path}"], cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads(proc.stdout)["resolution"] == 12  # the whole of stdout is the summary
     assert "resolution=12 gives" in proc.stderr  # the coarse grid's warning
     # another of Hydra's logging choices replaces it whole (patching the chosen one's handler broke `disabled`)
-    quiet = run_command_in_process("deepcurrents.extract", [f"ckpt_path={tmp_path / 'none.ckpt'}",
+    quiet = run_command_in_process("deepcurrents.cli.extract", [f"ckpt_path={tmp_path / 'none.ckpt'}",
                                                             "hydra/job_logging=disabled"], cwd=tmp_path)
     assert quiet.returncode == 2 and quiet.stderr.strip().endswith("does not exist.")

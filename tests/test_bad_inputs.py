@@ -436,8 +436,8 @@ CLI_CASES = [
         "experiment=minimal_trefoil", "logger=none", "+model.width=3", f"hydra.run.dir={tmp / 'run'}"]),
      "error: model.width is not a setting CurrentModule takes"),
     ("extract: text checkpoint", lambda tmp: (
-        "deepcurrents.extract", [f"ckpt_path={write(tmp / 'n.ckpt', 'notes')}"]), "n.ckpt"),
-    ("render: no checkpoint given", lambda tmp: ("deepcurrents.render", []), "ckpt_path"),
+        "deepcurrents.cli.extract", [f"ckpt_path={write(tmp / 'n.ckpt', 'notes')}"]), "n.ckpt"),
+    ("render: no checkpoint given", lambda tmp: ("deepcurrents.cli.render", []), "ckpt_path"),
 ]
 
 

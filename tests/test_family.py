@@ -780,7 +780,7 @@ def test_interpolation_and_generation_write_their_files(trained, family_dir, tmp
     with pytest.raises(ConfigError, match="mode='sideways' must be one of"):
         interpolate(cfg(InterpolateConfig, mode="sideways", out_dir=str(tmp_path / "x")))
     # ... and on the command line: the sentence, exit status 2, no traceback
-    proc = run_command_in_process("deepcurrents.interpolate",
+    proc = run_command_in_process("deepcurrents.cli.interpolate",
                                   [f"ckpt_path={tmp_path / 'edited_rim.obj'}", "a=0", "b=1"], cwd=ROOT)
     assert proc.returncode == 2 and "error: ckpt_path=" in proc.stderr and "Traceback" not in proc.stderr
 

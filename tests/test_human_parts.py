@@ -8,13 +8,11 @@ import pytest
 import trimesh
 
 from deepcurrents.cli.make_dataset import main
-from deepcurrents.data.human_parts import (
-    CATEGORIES,
-    DatasetError,
+from deepcurrents.data.human_parts import CATEGORIES, DatasetError, dataset_path
+from deepcurrents.data.human_parts_builder import (
     PartCut,
     anny_model,
     anny_parts,
-    dataset_path,
     faust_parts,
     kabsch_rotation,
     level_set_cut,

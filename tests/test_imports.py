@@ -39,17 +39,6 @@ def room(name: str) -> str:
     return parts[1] if len(parts) > 1 else ""
 
 
-def is_main_guard(node: ast.AST) -> bool:
-    """`if __name__ == "__main__":`, where a thin alias may import the command it runs."""
-    if not isinstance(node, ast.If) or not isinstance(node.test, ast.Compare):
-        return False
-    test = node.test
-    names = [test.left, *test.comparators]
-    return any(isinstance(n, ast.Name) and n.id == "__name__" for n in names) and any(
-        isinstance(n, ast.Constant) and n.value == "__main__" for n in names
-    )
-
-
 def is_type_checking(node: ast.AST) -> bool:
     return isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
 
@@ -71,8 +60,8 @@ def imported_names(node: ast.Import | ast.ImportFrom, module: str, is_package: b
 
 
 def collect_imports(path: Path, module: str, known: set[str]) -> tuple[list[tuple[str, int]], list[str]]:
-    """(every import outside `if __name__ == "__main__":` blocks with its line, the imports run when the
-    module is loaded: module level, outside functions, `TYPE_CHECKING` blocks and the main guard)."""
+    """(every import with its line, the imports run when the module is loaded: module level, outside functions
+    and `TYPE_CHECKING` blocks)."""
     tree = ast.parse(path.read_text(), filename=str(path))
     is_package = path.name == "__init__.py"
     everywhere: list[tuple[str, int]] = []
@@ -80,8 +69,6 @@ def collect_imports(path: Path, module: str, known: set[str]) -> tuple[list[tupl
 
     def walk(node: ast.AST, loading: bool) -> None:
         for child in ast.iter_child_nodes(node):
-            if is_main_guard(child):
-                continue
             if isinstance(child, (ast.Import, ast.ImportFrom)):
                 names = imported_names(child, module, is_package, known)
                 everywhere.extend((n, child.lineno) for n in names)
@@ -117,7 +104,7 @@ def test_the_graph_sees_every_room(graph):
 
 
 def violations(graph, rule) -> list[str]:
-    """Every import (outside a main guard) for which ``rule(module, target)`` is true, one line each."""
+    """Every import for which ``rule(module, target)`` is true, one line each."""
     return [f"{module} imports {target} (line {line})" for module, (everywhere, _) in graph.items()
             for target, line in everywhere if rule(module, target)]
 
@@ -133,10 +120,9 @@ def test_lower_rooms_do_not_import_upper_ones(graph, lower):
     assert not bad, f"{lower} must not import {', '.join(FORBIDDEN_BELOW[lower])}:\n" + "\n".join(bad)
 
 
-# docs/architecture.md: a room imports only from rooms on lower layers (the top-level aliases call cli/)
+# docs/architecture.md: a room imports only from rooms on lower layers
 LAYERS = {"errors": 1, "losses": 1, "geometry": 2, "nn": 3, "data": 3, "eval": 3, "models": 4, "baselines": 5,
-          "experiments": 6, "cli": 7, "train": 8, "render": 8, "extract": 8, "evaluate": 8, "interpolate": 8,
-          "generate": 8, "": 8}
+          "experiments": 6, "cli": 7, "": 8}
 
 
 def test_every_room_has_a_layer(graph):
@@ -195,10 +181,10 @@ def test_cycle_finder_finds_a_cycle_and_only_cycles():
 
 def test_no_import_cycles_between_modules(graph):
     edges = {
-        module: {t for t in at_load if t in graph and t != module}
-        for module, (_, at_load) in graph.items()
+        module: {t for t, _ in everywhere if t in graph and t != module}
+        for module, (everywhere, _) in graph.items()
     }
     cycles = find_cycles(edges)
-    assert not cycles, "import cycles (modules importing each other at load time):\n" + "\n".join(
+    assert not cycles, "import cycles (modules importing each other, at load time or inside functions):\n" + "\n".join(
         " <-> ".join(c) for c in cycles
     )

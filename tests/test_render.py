@@ -233,7 +233,7 @@ def test_a_2d_reconstruction_gets_its_metric_picture_from_the_render_app(tmp_pat
     ckpt = tmp_path / "run" / "checkpoints" / "last.ckpt"
     metric = metric_of(load_module(ckpt))
     assert metric is not None and torch.allclose(metric(torch.tensor([[0.0, 0.8]])), b[0].float(), atol=1e-6)
-    proc = run_command_in_process("deepcurrents.render", [f"ckpt_path={ckpt}", f"out_dir={tmp_path / 'pictures'}"],
+    proc = run_command_in_process("deepcurrents.cli.render", [f"ckpt_path={ckpt}", f"out_dir={tmp_path / 'pictures'}"],
                                   cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert sorted(p.name for p in (tmp_path / "pictures").iterdir()) == ["render.png", "render_metric.png"]

@@ -1,4 +1,4 @@
-"""Plumbing shared by the checkpoint apps (``python -m deepcurrents.render|extract|evaluate ckpt_path=…``):
+"""Plumbing shared by the checkpoint apps (``python -m deepcurrents.cli.render|extract|evaluate ckpt_path=…``):
 structured Hydra configs without config files, outputs next to the checkpoint, one-sentence errors.
 
 Each app registers its dataclass with :func:`register_app` and decorates its main with

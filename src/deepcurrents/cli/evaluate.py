@@ -1,5 +1,5 @@
 """Metrics of any checkpoint, optionally against a target surface:
-``python -m deepcurrents.evaluate ckpt_path=…/last.ckpt [target=path/to/mesh.ply] [mesh=path/to/own.ply]``.
+``python -m deepcurrents.cli.evaluate ckpt_path=…/last.ckpt [target=path/to/mesh.ply] [mesh=path/to/own.ply]``.
 
 Writes ``metrics.json`` (in a folder named after the checkpoint beside it, or ``out_dir=``):
 

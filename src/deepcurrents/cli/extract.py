@@ -1,5 +1,5 @@
 """The surface of any 3D checkpoint as a mesh at any resolution:
-``python -m deepcurrents.extract ckpt_path=…/last.ckpt resolution=256 [format=obj]``.
+``python -m deepcurrents.cli.extract ckpt_path=…/last.ckpt resolution=256 [format=obj]``.
 
 Uses the run's own meshing settings (``evaluation.mesh``: the method, by default the current's phase for
 minimal surfaces and the grid and the paper's level set f = s for reconstructions and families; the |ω|

@@ -1,6 +1,6 @@
 """A surface for a new (edited) boundary from a family model (paper §5.3: the boundary is the handle)::
 
-    python -m deepcurrents.generate ckpt_path=…/last.ckpt curve=edited_rim.obj latent=3
+    python -m deepcurrents.cli.generate ckpt_path=…/last.ckpt curve=edited_rim.obj latent=3
 
 ``curve`` is a curve file (``.obj`` polylines, one ``l`` per loop; ``.txt``/``.npy`` for one loop; or a
 named curve such as ``circle``) with as many loops as the family's shapes have. Its loops are matched to
@@ -35,7 +35,7 @@ log = logging.getLogger("deepcurrents")
 
 @dataclass
 class GenerateConfig:
-    """``python -m deepcurrents.generate`` settings."""
+    """``python -m deepcurrents.cli.generate`` settings."""
 
     ckpt_path: str = MISSING  # a family checkpoint (…/checkpoints/last.ckpt)
     curve: str = MISSING  # the new boundary: a curve file (or a named curve: circle, trefoil, hopf, …)

@@ -1,8 +1,8 @@
 """Interpolate between two training shapes of a family model (paper §5.3, Fig. 6)::
 
-    python -m deepcurrents.interpolate ckpt_path=…/last.ckpt mode=latent a=3 b=12 steps=5
-    python -m deepcurrents.interpolate ckpt_path=… mode=boundary a=3 b=12 steps=5
-    python -m deepcurrents.interpolate ckpt_path=… mode=grid a=3 b=12 steps=5
+    python -m deepcurrents.cli.interpolate ckpt_path=…/last.ckpt mode=latent a=3 b=12 steps=5
+    python -m deepcurrents.cli.interpolate ckpt_path=… mode=boundary a=3 b=12 steps=5
+    python -m deepcurrents.cli.interpolate ckpt_path=… mode=grid a=3 b=12 steps=5
 
 - ``latent``: z = (1 − t) z_a + t z_b with the boundary of shape ``hold`` (default a) held fixed;
 - ``boundary``: Γ = (1 − t) Γ_a + t Γ_b vertex by vertex (loops are matched across the family at training
@@ -41,7 +41,7 @@ MODES = ("latent", "boundary", "grid")
 
 @dataclass
 class InterpolateConfig:
-    """``python -m deepcurrents.interpolate`` settings."""
+    """``python -m deepcurrents.cli.interpolate`` settings."""
 
     ckpt_path: str = MISSING  # a family checkpoint (…/checkpoints/last.ckpt)
     mode: str = "latent"  # latent | boundary | grid

@@ -1,5 +1,6 @@
 """``deepcurrents-make-dataset`` (``python -m deepcurrents.cli.make_dataset``; ``make data``): writes the
-human-part datasets ``<out>/<source>/<category>/NNN.ply`` from Anny bodies or FAUST (deepcurrents.data.human_parts)."""
+human-part datasets ``<out>/<source>/<category>/NNN.ply`` from Anny bodies or FAUST
+(``deepcurrents.data.human_parts_builder``)."""
 
 from __future__ import annotations
 
@@ -11,14 +12,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from deepcurrents.cli.common import exit_on_user_error
-from deepcurrents.data.human_parts import (
-    BORDERS,
-    CATEGORIES,
-    DatasetError,
-    anny_parts,
-    faust_parts,
-    write_parts,
-)
+from deepcurrents.data.human_parts import CATEGORIES, DatasetError
+from deepcurrents.data.human_parts_builder import BORDERS, anny_parts, faust_parts, write_parts
 
 log = logging.getLogger("deepcurrents.make_dataset")
 

@@ -1,4 +1,4 @@
-"""Pictures of any checkpoint: ``python -m deepcurrents.render ckpt_path=…/last.ckpt [overrides]``.
+"""Pictures of any checkpoint: ``python -m deepcurrents.cli.render ckpt_path=…/last.ckpt [overrides]``.
 
 3D currents: a volume render in the paper's style (density from |ω|, colour from ω's direction, Γ drawn
 over it) → ``render.png``; ``turntable=true frames=36`` → ``render_turntable.gif`` (and ``.mp4`` where

@@ -52,7 +52,7 @@ def read_target_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     verts = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
     faces = drop_repeated_faces(faces, f"Mesh '{path}'")
-    from deepcurrents.data.human_parts import cut_part, largest_component
+    from deepcurrents.data.human_parts_builder import cut_part, largest_component
 
     _check_manifold(path, faces)
     keep = largest_component(faces)

@@ -7,7 +7,7 @@ rank trains its own shard of the meshes and gradients are averaged as for any ot
 codes a rank did not see get zero gradient there).
 
 The unaugmented training boundaries and bounding boxes are saved in checkpoints, so one is enough to
-rebuild, mesh, interpolate and edit every training shape (``deepcurrents.interpolate`` / ``generate``).
+rebuild, mesh, interpolate and edit every training shape (``deepcurrents.cli.interpolate`` / ``generate``).
 """
 
 from __future__ import annotations

@@ -122,7 +122,7 @@ def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.nd
 
 
 # Peak memory of meshing per grid node: the nodes in float64 and float32, the sampled volume, marching cubes'
-# work arrays. Measured with `python -m deepcurrents.extract` on the quick start's trefoil: 113-135 bytes a node
+# work arrays. Measured with `python -m deepcurrents.cli.extract` on the quick start's trefoil: 113-135 bytes a node
 # at resolutions 256 and 384 (peak RSS less the process's own); the check uses a little less, so that it refuses
 # only grids that cannot fit.
 NODE_BYTES = 100
