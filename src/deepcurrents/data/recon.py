@@ -284,6 +284,20 @@ class ReconstructionDataModule(L.LightningDataModule):
                          "boundary_weighting": bool(boundary_weighting), "surface_loss": bool(surface_loss)}
         self.num_workers, self.seed = num_workers, seed
 
+        mesh, name = self._target_file(mesh, points, curve, category, source, index, root)
+        self.source_file = str(mesh or points)
+        if mesh is not None:
+            loops = self._read_mesh(mesh, normalize)
+        else:
+            loops = self._read_points(points, curve, normalize, curve_tolerance)
+        self.boundary = Boundary(loops, name)
+        self.loops = loops
+
+    @staticmethod
+    def _target_file(mesh: str | None, points: str | None, curve: str | None, category: str | None, source: str,
+                     index: int, root: str) -> tuple[str | None, str]:
+        """(the target mesh's file, None for a point cloud; the run's name for the target): a dataset category
+        resolved to its file, a warning for the inputs a mesh makes unused."""
         if (mesh is not None or points is None and category is not None) and (points or curve) is not None:
             ignored = " and ".join(k for k, v in (("data.points", points), ("data.curve", curve)) if v is not None)
             log.warning("%s is given, so %s %s ignored: Γ is the mesh's own boundary.",
@@ -296,36 +310,39 @@ class ReconstructionDataModule(L.LightningDataModule):
             if isinstance(index, bool) or not isinstance(index, int):
                 raise ConfigError(f"data.index={index!r} must be an integer.")
             mesh = str(dataset_path(root, source, category, index))
-            name = f"{source}/{category}/{Path(mesh).stem}"
-        else:
-            name = Path(mesh or points).stem
-        self.source_file = str(mesh or points)
+            return mesh, f"{source}/{category}/{Path(mesh).stem}"
+        return mesh, Path(mesh or points).stem
 
-        if mesh is not None:
-            verts, faces = read_target_mesh(mesh)
-            self.scale, self.offset = normalisation(verts, normalize)
-            verts = (verts - self.offset) / self.scale
-            loops = validate_loops(mesh_boundary_loops(verts, faces), f"of mesh '{mesh}'")
-            self.target = {"kind": "mesh", "vertices": verts, "faces": faces}
-        else:
-            if curve is None:
-                raise ConfigError(f"data.points='{points}' needs data.curve=PATH: the boundary Γ of the "
-                                  "surface.")
-            pts, nrm = read_oriented_points(points)
-            self.scale, self.offset = normalisation(pts, normalize)
-            pts = (pts - self.offset) / self.scale
-            loops = [(lp - self.offset) / self.scale for lp in load_boundary(curve, domain=np.inf).loops]
-            # with the cloud centred and scaled, a curve outside the domain is a curve off the cloud: say that first
-            # (the domain sentence would ask for the normalisation already on); without it, the domain comes first
-            if normalize is not False:
-                self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
-            loops = validate_loops(loops, f"'{curve}'")
-            if normalize is False:
-                self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
-            loops = self._orient_curve_with_normals(loops, pts, nrm, curve, points)
-            self.target = {"kind": "points", "points": pts, "normals": nrm}
-        self.boundary = Boundary(loops, name)
-        self.loops = loops
+    def _read_mesh(self, mesh: str, normalize: bool | str) -> list[np.ndarray]:
+        """A target mesh, normalised (``self.target``, ``self.scale``, ``self.offset``) → Γ, its boundary loops."""
+        verts, faces = read_target_mesh(mesh)
+        self.scale, self.offset = normalisation(verts, normalize)
+        verts = (verts - self.offset) / self.scale
+        loops = validate_loops(mesh_boundary_loops(verts, faces), f"of mesh '{mesh}'")
+        self.target = {"kind": "mesh", "vertices": verts, "faces": faces}
+        return loops
+
+    def _read_points(self, points: str, curve: str | None, normalize: bool | str,
+                     curve_tolerance: float) -> list[np.ndarray]:
+        """An oriented point cloud and its curve file, normalised together (``self.target``, ``self.scale``,
+        ``self.offset``) → Γ, the curve's loops oriented with the cloud's normals."""
+        if curve is None:
+            raise ConfigError(f"data.points='{points}' needs data.curve=PATH: the boundary Γ of the "
+                              "surface.")
+        pts, nrm = read_oriented_points(points)
+        self.scale, self.offset = normalisation(pts, normalize)
+        pts = (pts - self.offset) / self.scale
+        loops = [(lp - self.offset) / self.scale for lp in load_boundary(curve, domain=np.inf).loops]
+        # with the cloud centred and scaled, a curve outside the domain is a curve off the cloud: say that first
+        # (the domain sentence would ask for the normalisation already on); without it, the domain comes first
+        if normalize is not False:
+            self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
+        loops = validate_loops(loops, f"'{curve}'")
+        if normalize is False:
+            self._check_curve_near_points(loops, pts, curve, points, curve_tolerance)
+        loops = self._orient_curve_with_normals(loops, pts, nrm, curve, points)
+        self.target = {"kind": "points", "points": pts, "normals": nrm}
+        return loops
 
     @staticmethod
     def _check_curve_near_points(loops, pts, curve, points, tolerance: float) -> None:

@@ -265,14 +265,7 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None, m
     L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
     datamodule, module = build(cfg)
     resume = resume_path(cfg.get("ckpt_path"), out_dir)
-    resumed_step = None
-    if resume is not None:
-        resumed_step = int(check_resumable(resume, module).get("global_step") or 0)
-        max_steps = cfg.trainer.get("max_steps")
-        if is_global_rank_zero() and isinstance(max_steps, int) and 0 <= max_steps <= resumed_step:
-            log.warning("%s is at step %d, which trainer.max_steps=%d does not exceed: no step will be trained, and "
-                        "the final evaluation scores the checkpoint as it is (raise trainer.max_steps to train on).",
-                        resume, resumed_step, max_steps)
+    resumed_step = _resumed_step(cfg, resume, module)
     check_free_space(out_dir, module)
     module.check_final_mesh()
     last = out_dir / "checkpoints" / "last.ckpt"
@@ -289,30 +282,7 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None, m
         **trainer_overrides(cfg),  # max_time in seconds → timedelta
     )
     with finished_loggers(trainer):  # one logged run per job: the next job of a sweep or suite starts its own
-        threads = training_threads(cfg, trainer)
-        if threads is not None:
-            log.info("Training with %d torch thread(s) beside %s loader worker(s) (torch_threads).", threads,
-                     cfg.data.get("num_workers", 0))
-        try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
-            with torch_threads(threads):
-                trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
-        except MisconfigurationException as err:  # a trainer setting Lightning checks only once fitting runs
-            text = " ".join(str(err).split()).rstrip(".")
-            raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
-        except OSError as err:  # a logger's file (the CSV logger's metrics) on a disk that filled up during training
-            if err.errno not in (errno.ENOSPC, errno.EDQUOT):
-                raise
-            where = f": {err.filename}" if err.filename else ""
-            raise UserInputError(f"Writing the run's files failed at step {trainer.global_step} ({err.strerror}{where})"
-                                 f"; {kept_checkpoint(trainer)}; free some space. "
-                                 f"{resume_hint or continue_hint(out_dir)}") from None
-        except SIGTERMException:
-            name = preemption.signal_name
-            if trainer.is_global_zero:
-                hint = resume_hint or continue_hint(out_dir)
-                log.warning("Stopped by %s at step %d; %s holds it. %s", "Ctrl-C" if name == "SIGINT" else name,
-                            trainer.global_step, last, hint)
-            raise SystemExit(130 if name == "SIGINT" else 143) from None
+        _fit(cfg, trainer, module, datamodule, resume, preemption, out_dir, resume_hint)
         # the final state, whatever step it ended on (periodic checkpoints may be older)
         trainer.save_checkpoint(last, weights_only=False)
         if trainer.interrupted:
@@ -322,24 +292,75 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None, m
                         "final evaluation scores it as it is.", resume)
         if not trainer.is_global_zero:
             return None
-        started = time.perf_counter()
-        with torch_threads(evaluation_threads(cfg)):
-            metrics = module.final_evaluation(out_dir)
-        if metrics is not None:  # the final evaluation's own cost, beside train_seconds (issue: at most a fifth of it)
-            metrics["evaluation_seconds"] = round(time.perf_counter() - started, 3)
-            module.write_metrics(out_dir, metrics)
-        log.info("metrics: %s", json.dumps(metrics))
-        for cb in trainer.callbacks:  # final media (deepcurrents.models.callbacks.MediaCallback) before loggers close
-            hook = getattr(cb, "on_final_evaluation", None)
-            if callable(hook):
-                hook(trainer, module, metrics, out_dir)
-        for lg in trainer.loggers:
-            lg.log_metrics({f"final/{k}": v for k, v in metrics.items() if isinstance(v, (int, float))},
-                           step=int(module.global_step))
-            if hasattr(lg, "experiment") and hasattr(lg.experiment, "summary"):
-                lg.experiment.summary.update({f"final/{k}": v for k, v in metrics.items()})
-            lg.finalize("success")
-        return metrics
+        return _final_evaluation(cfg, trainer, module, out_dir)
+
+
+def _resumed_step(cfg: DictConfig, resume: Path | None, module: L.LightningModule) -> int | None:
+    """The step of the checkpoint a run resumes from (None: a fresh run), with a warning when the run's
+    ``trainer.max_steps`` leaves nothing to train."""
+    if resume is None:
+        return None
+    resumed_step = int(check_resumable(resume, module).get("global_step") or 0)
+    max_steps = cfg.trainer.get("max_steps")
+    if is_global_rank_zero() and isinstance(max_steps, int) and 0 <= max_steps <= resumed_step:
+        log.warning("%s is at step %d, which trainer.max_steps=%d does not exceed: no step will be trained, and "
+                    "the final evaluation scores the checkpoint as it is (raise trainer.max_steps to train on).",
+                    resume, resumed_step, max_steps)
+    return resumed_step
+
+
+def _fit(cfg: DictConfig, trainer: L.Trainer, module: L.LightningModule, datamodule: L.LightningDataModule,
+         resume: Path | None, preemption: PreemptionCheckpoint, out_dir: Path, resume_hint: str | None) -> None:
+    """``trainer.fit``, with a trainer setting Lightning refuses, a full disk and a stop signal said in one
+    sentence (the last checkpoint kept)."""
+    threads = training_threads(cfg, trainer)
+    if threads is not None:
+        log.info("Training with %d torch thread(s) beside %s loader worker(s) (torch_threads).", threads,
+                 cfg.data.get("num_workers", 0))
+    try:  # weights_only: resuming never unpickles objects (AtomicCheckpointIO insists as well)
+        with torch_threads(threads):
+            trainer.fit(module, datamodule=datamodule, ckpt_path=resume, weights_only=True)
+    except MisconfigurationException as err:  # a trainer setting Lightning checks only once fitting runs
+        text = " ".join(str(err).split()).rstrip(".")
+        raise ConfigError(f"Lightning refused the trainer settings: {text}.") from None
+    except OSError as err:  # a logger's file (the CSV logger's metrics) on a disk that filled up during training
+        if err.errno not in (errno.ENOSPC, errno.EDQUOT):
+            raise
+        where = f": {err.filename}" if err.filename else ""
+        raise UserInputError(f"Writing the run's files failed at step {trainer.global_step} ({err.strerror}{where})"
+                             f"; {kept_checkpoint(trainer)}; free some space. "
+                             f"{resume_hint or continue_hint(out_dir)}") from None
+    except SIGTERMException:
+        name = preemption.signal_name
+        if trainer.is_global_zero:
+            hint = resume_hint or continue_hint(out_dir)
+            log.warning("Stopped by %s at step %d; %s holds it. %s", "Ctrl-C" if name == "SIGINT" else name,
+                        trainer.global_step, preemption.path, hint)
+        raise SystemExit(130 if name == "SIGINT" else 143) from None
+
+
+def _final_evaluation(cfg: DictConfig, trainer: L.Trainer, module: L.LightningModule,
+                      out_dir: Path) -> dict[str, Any]:
+    """The module's final evaluation (timed, written to metrics.json), the final media, and the final metrics sent
+    to every logger (rank zero only)."""
+    started = time.perf_counter()
+    with torch_threads(evaluation_threads(cfg)):
+        metrics = module.final_evaluation(out_dir)
+    if metrics is not None:  # the final evaluation's own cost, beside train_seconds
+        metrics["evaluation_seconds"] = round(time.perf_counter() - started, 3)
+        module.write_metrics(out_dir, metrics)
+    log.info("metrics: %s", json.dumps(metrics))
+    for cb in trainer.callbacks:  # final media (deepcurrents.models.callbacks.MediaCallback) before loggers close
+        hook = getattr(cb, "on_final_evaluation", None)
+        if callable(hook):
+            hook(trainer, module, metrics, out_dir)
+    for lg in trainer.loggers:
+        lg.log_metrics({f"final/{k}": v for k, v in metrics.items() if isinstance(v, (int, float))},
+                       step=int(module.global_step))
+        if hasattr(lg, "experiment") and hasattr(lg.experiment, "summary"):
+            lg.experiment.summary.update({f"final/{k}": v for k, v in metrics.items()})
+        lg.finalize("success")
+    return metrics
 
 
 def continue_hint(out_dir: Path) -> str:
