@@ -504,7 +504,7 @@ def test_a_share_out_of_range_or_not_a_number_is_one_sentence(value, sentence):
 @pytest.mark.parametrize("key, value", [("lr", "fast"), ("prior_weight", "some"), ("lr", -1)])
 def test_the_latent_fit_settings_are_checked_before_training_in_one_sentence(key, value):
     from deepcurrents.errors import ConfigError
-    from deepcurrents.models.autodecoder import check_latent_fit
+    from deepcurrents.models.latent_fit import check_latent_fit
 
     settings = {"steps": 10, "lr": 1e-3, "num_samples": 64, "num_surface_samples": 64, "prior_weight": 0.0}
     with pytest.raises(ConfigError, match=rf"^model\.latent_fit\.{key}={value} must be"):

@@ -133,7 +133,7 @@ def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
     mask = torch.ones(2, 1, 24, dtype=torch.bool)
     z = module.family.latents.weight[:1].detach().repeat(2, 1)
     torch.manual_seed(3)
-    got = module.interpolation_loss(z, padded, mask, 300)
+    got = module.interpolation.loss(module.family, z, padded, mask, 300)
     torch.manual_seed(3)
     torch.rand(2, 1)  # the two t's
     x = torch.rand(2, 300, 3) * 2 - 1
@@ -145,7 +145,7 @@ def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
     assert module.family.mlp.net[0].weight.grad.abs().sum() > 0
     short = mask.clone()
     short[1, 0, -1] = False
-    assert module.interpolation_loss(z, padded, short, 10) is None
+    assert module.interpolation.loss(module.family, z, padded, short, 10) is None
     with pytest.raises(ConfigError, match="interpolation_weight"):
         AutodecoderModule(**{**module.hparams, "interpolation_weight": -1.0})
 
@@ -154,7 +154,7 @@ def test_independent_mix_blends_code_and_boundary_apart():
     """interpolation_mix=independent: the pair's code at t and its boundary at another s (the grid's
     off-diagonal members), checked against the member (z_t, Γ_s) built by hand."""
     module = small_module()
-    module.hparams.interpolation_mix = "independent"
+    module.interpolation.mix = "independent"
     module.train()
     rims = [torch.as_tensor(disc_mesh(SHAPES[k], radius=0.25).vertices[-24:], dtype=torch.float32)
             for k in ("000_cap", "001_saddle")]
@@ -162,7 +162,7 @@ def test_independent_mix_blends_code_and_boundary_apart():
     mask = torch.ones(2, 1, 24, dtype=torch.bool)
     z = module.family.latents.weight[:2].detach()
     torch.manual_seed(5)
-    got = module.interpolation_loss(z, padded, mask, 200)
+    got = module.interpolation.loss(module.family, z, padded, mask, 200)
     torch.manual_seed(5)
     t, s = torch.rand(2, 1), torch.rand(2, 1)
     x = torch.rand(2, 200, 3) * 2 - 1
@@ -182,11 +182,11 @@ def test_near_interpolation_points_keep_the_uniform_mean_and_sit_on_both_shapes(
     of the pair's two shapes, and their importance weights keep E[w g(x)] = E_U[g] (checked for g = 1 and
     g = x₀², whose uniform means are 1 and 1/3, to a few standard errors of 4 × 20,000 points)."""
     module = small_module()
-    module.interpolation_sampling = {"kind": "near", "near_sigma": 0.03, "uniform_fraction": 0.5, "weighted": True}
+    module.interpolation.sampling = {"kind": "near", "near_sigma": 0.03, "uniform_fraction": 0.5, "weighted": True}
     torch.manual_seed(0)
     surface = torch.stack([torch.rand(64, 3) * 0.2 - 0.6, torch.rand(64, 3) * 0.2 + 0.4])  # two far-apart shapes
     i, j = torch.tensor([0, 1]), torch.tensor([1, 0])
-    x, w = module.interpolation_points(i, j, 20000, surface, torch.float32)
+    x, w = module.interpolation.points(i, j, 20000, surface, torch.float32)
     assert x.shape == (2, 20000, 3) and w.shape == (2, 20000)
     for g, exact in ((torch.ones_like(x[..., 0]), 1.0), (x[..., 0] ** 2, 1.0 / 3.0)):
         values = (w * g).double().flatten()
@@ -200,7 +200,7 @@ def test_near_interpolation_points_keep_the_uniform_mean_and_sit_on_both_shapes(
     # the loss through them: finite, and gradients reach the decoder
     loops = torch.as_tensor(disc_mesh(SHAPES["000_cap"], radius=0.25).vertices[-24:], dtype=torch.float32)
     module.train()
-    loss = module.interpolation_loss(module.family.latents.weight[:2].detach(), loops[None, None].repeat(2, 1, 1, 1),
+    loss = module.interpolation.loss(module.family, module.family.latents.weight[:2].detach(), loops[None, None].repeat(2, 1, 1, 1),
                                      torch.ones(2, 1, 24, dtype=torch.bool), 100, surface)
     loss.backward()
     assert torch.isfinite(loss) and module.family.mlp.net[0].weight.grad.abs().sum() > 0

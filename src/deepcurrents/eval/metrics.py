@@ -125,45 +125,36 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
                   tube_fraction: float = 0.125) -> tuple[float, float]:
     """Monte Carlo E_x |B_x ω(x)| over U = [-1, 1]^d and its standard error, in chunks (bounded memory).
 
-    Each chunk is stratified (``stratified_uniform``: one sample per cell of a 32³ grid for 2^15 samples in
-    3D): every sample is uniform over U and the mean is unbiased as with independent samples, but the
-    variance between cells is gone (on the trained make-run trefoil the standard error at 2^20 samples is
-    0.69 % of the mean instead of 0.92 %). The standard error is the collapsed-strata estimate
-    (``paired_square_sum``) over the cells' values.
-    ``refine`` > 1: the cells near Γ (``cells_near_boundary``, Γ from ``boundary_segments``) are split into
-    refine^d sub-cells with one uniform sample each; the cell's value is their mean and its variance is
-    estimated from pairs of neighbouring sub-cells. Near Γ, |ω| ≈ alpha_scale·|α| ∼ 1/r has no finite variance
-    and dominates the estimate's: on the trained make-run trefoil the 2.8 % of the 32³ cells within two cells
-    of Γ held 97 % of the within-cell variance. Every cell still weighs its volume and every sample is uniform
-    within its (sub-)cell, so the estimate stays unbiased. There, with refine 3, one chunk cost 1.73× the
-    evaluations and its estimates scattered 5× less (standard deviation over 24 seeds 0.0057 against 0.0293
-    in area units); the reported error, conservative by neighbouring cells' differences away from Γ, fell 2.9×.
-    ``refine_points`` (P, d): the cells holding any of them are refined as well, e.g. the vertices of the final
-    mesh: a sharpened current's |ω| lives in a thin shell around its mesh, which crosses cells far from Γ too
-    (``evaluation.mass_refine_mesh``; on a sharpened trefoil with refine 4, 2^18 samples: standard error 0.48 %
-    of the mean against 1.6 % with refine 3 near Γ alone, at 1.4× the time).
+    Each chunk is stratified (``stratified_uniform``: one sample per cell of a k^d grid): every sample is uniform
+    over U and the mean is unbiased as with independent samples, but the variance between cells is gone. The
+    standard error is the collapsed-strata estimate (``paired_square_sum``) over the cells' values.
+    ``refine`` > 1: the cells near Γ (``cells_near_boundary``) are split into refine^d sub-cells with one uniform
+    sample each; the cell's value is their mean and its variance is estimated from pairs of neighbouring
+    sub-cells. Near Γ, |ω| ≈ alpha_scale·|α| ∼ 1/r has no finite variance and dominates the estimate's; every cell
+    still weighs its volume and every sample is uniform within its (sub-)cell, so the estimate stays unbiased.
+    ``refine_points`` (P, d): the cells holding any of them are refined as well (e.g. the final mesh's vertices:
+    a sharpened current's |ω| lives in a thin shell around its mesh; ``evaluation.mass_refine_mesh``).
     ``tube_radius`` > 0 (3D loops): the tube T of points within it of Γ's segments (``tube_density``) is
     integrated apart, by ``tube_fraction`` × n samples a chunk drawn with density q ∝ 1/r about Γ
-    (``sample_tube``), each weighing |ω|/q, while the stratified samples that fall in T count 0. Next to Γ
-    |ω|·r stays bounded, so the tube's part has a finite variance where uniform samples' diverges (a rare
-    sample very close to Γ then no longer decides when the estimate stops, nor how far it is off); the design
-    depends on Γ alone and the estimate stays unbiased.
+    (``sample_tube``), each weighing |ω|/q, while the stratified samples that fall in T count 0: |ω|·r stays
+    bounded next to Γ, so the tube's part has a finite variance where uniform samples' diverges.
     ``metric_fn(x) -> B`` (None for B = I) lets reconstruction evaluate its weighted mass the same way.
     ``rel_stderr``: stop early, once at least ``min_samples`` are drawn and stderr / mean ≤ rel_stderr
     (``num_samples`` is then the most it draws). Samples count cells (the points a plain stratified estimate
     would draw); ``info`` (a dict, if given) receives their number under "samples" and the points evaluated
-    (refined cells' sub-samples included) under "evaluations".
+    (refined cells' sub-samples included) under "evaluations". The variance study behind these choices:
+    docs/notes/meshing.md, "The mass bound's estimator".
     """
     if refine < 1:
         raise ValueError(f"refine={refine} must be at least 1.")
-    dev = device_of(current)
+    dim, dev = current.dim, device_of(current)
     gen = torch.Generator(device="cpu").manual_seed(seed)
     boundary = boundary_segments(current) if refine > 1 or tube_radius > 0 else None
     segments = boundary if refine > 1 else None
     points = refine_points if refine > 1 and refine_points is not None and len(refine_points) else None
     refined: dict[int, tuple | None] = {}  # per grid side k, found once: (the refined cells, their corners)
     tube = None  # Γ's segments when the tube about them is integrated apart (3D loops of positive length)
-    if tube_radius > 0 and current.dim == 3 and boundary is not None:
+    if tube_radius > 0 and dim == 3 and boundary is not None:
         tube = boundary if float((boundary[1] - boundary[0]).norm(dim=-1).sum()) > 0 else None
 
     def norm_of_omega(x: torch.Tensor) -> torch.Tensor:
@@ -178,48 +169,19 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
     total, paired, done, evaluated = 0.0, 0.0, 0, 0
     while done < num_samples:
         n = min(chunk_size, num_samples - done)
-        x = stratified_uniform(n, current.dim, gen)
-        k = _strata(n, current.dim)
+        k = _strata(n, dim)
         if (segments is not None or points is not None) and k >= 2 and k not in refined:
-            near = torch.zeros(k**current.dim, dtype=torch.bool)
-            if segments is not None:
-                near |= cells_near_boundary(k, current.dim, segments)
-            if points is not None:
-                near |= cells_containing(k, current.dim, points)
-            near = near.nonzero().squeeze(1)
-            refined[k] = (near, _cell_corners(k, current.dim)[near]) if len(near) else None
-        near = None
-        if refined.get(k) is not None:
-            near, corners = refined[k]
-            sub = _cell_corners(refine, current.dim)  # (r^d, d)
-            u = torch.rand(len(near), len(sub), current.dim, generator=gen)
-            fine = ((corners[:, None] + (sub[None] + u) / refine) / k * 2.0 - 1.0).reshape(-1, current.dim)
-            keep = torch.ones(n, dtype=torch.bool)
-            keep[near] = False
-            x = torch.cat([x[keep], fine])
+            refined[k] = _cells_to_refine(k, dim, segments, points)
+        x, near = _chunk_points(n, dim, gen, refined.get(k), refine)
         m = norm_of_omega(x)
         evaluated += len(m)
         if tube is not None:
             m = m.masked_fill(tube_density(x, *tube, tube_radius).to(m.device) > 0, 0.0)
-            xt, q = sample_tube(*tube, tube_radius, max(2, int(n * tube_fraction)), gen)
-            w = norm_of_omega(xt.to(x.dtype)) / q.to(dev)  # each an unbiased estimate of ∫_T∩U |ω| dx
-            w = w.masked_fill((xt.abs() > 1.0).any(-1).to(w.device), 0.0)
-            evaluated += len(w)
-            scale = n / (2.0**current.dim * len(w))  # the tube's integral as n cells' worth of E_U|ω|
-            total += float(w.sum()) * scale
-            paired += paired_square_sum(w) * scale**2
-        if near is None:
-            total += float(m.sum())
-            paired += paired_square_sum(m)
-        else:
-            # a refined cell's value is its sub-samples' mean, whose variance its own sub-cells estimate (pairs
-            # of neighbouring sub-cells): pairing it with a neighbouring cell instead would count the steep
-            # change of |ω| towards Γ between the two cells as variance
-            kept = n - len(near)
-            sub_values = m[kept:].reshape(len(near), -1)
-            total += float(m[:kept].sum() + sub_values.mean(1).sum())
-            paired += paired_square_sum(m[:kept]) + paired_square_sum(sub_values) / sub_values.shape[1] ** 2
-        done += n
+            tube_total, tube_paired, tube_evaluated = _tube_part(norm_of_omega, tube, tube_radius, n, tube_fraction,
+                                                                 dim, x.dtype, gen)
+            total, paired, evaluated = total + tube_total, paired + tube_paired, evaluated + tube_evaluated
+        chunk_total, chunk_paired = _cells_part(m, n, near)
+        total, paired, done = total + chunk_total, paired + chunk_paired, done + n
         if rel_stderr is not None and done >= min_samples and done < num_samples:
             if math.sqrt(paired) / done <= rel_stderr * abs(total / done):
                 break
@@ -227,6 +189,59 @@ def mass_estimate(current, num_samples: int = 1 << 20, seed: int = 0, chunk_size
         info["samples"] = done
         info["evaluations"] = evaluated
     return total / done, math.sqrt(paired) / done
+
+
+def _cells_to_refine(k: int, dim: int, segments: tuple | None, points: torch.Tensor | None) -> tuple | None:
+    """The cells of the k^d grid to refine: near Γ's ``segments`` and holding any of ``points``.
+    → (their indices (C,), their integer corners (C, d)), or None when there are none."""
+    near = torch.zeros(k**dim, dtype=torch.bool)
+    if segments is not None:
+        near |= cells_near_boundary(k, dim, segments)
+    if points is not None:
+        near |= cells_containing(k, dim, points)
+    near = near.nonzero().squeeze(1)
+    return (near, _cell_corners(k, dim)[near]) if len(near) else None
+
+
+def _chunk_points(n: int, dim: int, gen: torch.Generator, refined: tuple | None,
+                  refine: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """One chunk's points: n stratified samples, the refined cells' own replaced by refine^d sub-cell samples
+    each, placed last. → (points (N, d), the refined cells' indices or None)."""
+    x = stratified_uniform(n, dim, gen)
+    if refined is None:
+        return x, None
+    k = _strata(n, dim)
+    near, corners = refined
+    sub = _cell_corners(refine, dim)  # (r^d, d)
+    u = torch.rand(len(near), len(sub), dim, generator=gen)
+    fine = ((corners[:, None] + (sub[None] + u) / refine) / k * 2.0 - 1.0).reshape(-1, dim)
+    keep = torch.ones(n, dtype=torch.bool)
+    keep[near] = False
+    return torch.cat([x[keep], fine]), near
+
+
+def _tube_part(norm_of_omega, tube: tuple, radius: float, n: int, fraction: float, dim: int, dtype: torch.dtype,
+               gen: torch.Generator) -> tuple[float, float, int]:
+    """The tube about Γ's share of one chunk: samples of density q ∝ 1/r about Γ, each |ω|/q an unbiased estimate
+    of ∫_T∩U |ω| dx, scaled to n cells' worth of E_U|ω|. → (sum, paired square sum, points evaluated)."""
+    xt, q = sample_tube(*tube, radius, max(2, int(n * fraction)), gen)
+    w = norm_of_omega(xt.to(dtype))
+    w = w / q.to(w.device)
+    w = w.masked_fill((xt.abs() > 1.0).any(-1).to(w.device), 0.0)
+    scale = n / (2.0**dim * len(w))
+    return float(w.sum()) * scale, paired_square_sum(w) * scale**2, len(w)
+
+
+def _cells_part(m: torch.Tensor, n: int, near: torch.Tensor | None) -> tuple[float, float]:
+    """One chunk's sum and paired square sum over its n cells, |ω| (or |Bω|) at its points ``m``. A refined cell's
+    value is its sub-samples' mean, whose variance its own sub-cells estimate (pairs of neighbouring sub-cells):
+    pairing it with a neighbouring cell instead would count the steep change of |ω| towards Γ as variance."""
+    if near is None:
+        return float(m.sum()), paired_square_sum(m)
+    kept = n - len(near)
+    sub_values = m[kept:].reshape(len(near), -1)
+    return (float(m[:kept].sum() + sub_values.mean(1).sum()),
+            paired_square_sum(m[:kept]) + paired_square_sum(sub_values) / sub_values.shape[1] ** 2)
 
 
 def mass_estimate_settings(evaluation: dict, mesh: trimesh.Trimesh | None = None) -> dict[str, Any]:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -121,10 +121,8 @@ def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.nd
     return faces[bordered[labels]], dropped
 
 
-# Peak memory of meshing per grid node: the nodes in float64 and float32, the sampled volume, marching cubes'
-# work arrays. Measured with `python -m deepcurrents.cli.extract` on the quick start's trefoil: 113-135 bytes a node
-# at resolutions 256 and 384 (peak RSS less the process's own); the check uses a little less, so that it refuses
-# only grids that cannot fit.
+# Peak memory of meshing per grid node (nodes, sampled volume, marching cubes' work arrays), a little under the
+# measured (docs/notes/meshing.md), so that the check refuses only grids that cannot fit.
 NODE_BYTES = 100
 # the level set is meshed once more at 1.5× where Newton moved more than this share of the marched vertices by more
 # than half a cell (extract_surface)
@@ -152,8 +150,30 @@ def _grid(bounds: np.ndarray, resolution: int, key: str = "resolution"
     return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), shape, voxel
 
 
-# (resolution key, resolution, cell width) already warned about: a family's interpolation meshes each step alike
-_WIDENED_SAID: set[tuple[str, int, float]] = set()
+@dataclass(frozen=True)
+class MeshSettings:
+    """How ``extract_surface`` meshes (its arguments, documented there), for one grid."""
+
+    resolution: int = 128
+    delta: float = 5e-3
+    boundary_tube: float = 0.04
+    newton_steps: int = 3
+    min_component: float = 0.01
+    min_alignment: float = 0.5
+    close_boundary: bool = True
+    method: str = "phase"
+    strip_rows: int | None = None
+    chunk_size: int = 1 << 16
+    resolution_key: str = "resolution"
+
+
+@dataclass
+class _Refine:
+    """A grid too coarse for the current: why (what it showed) and what marching cubes would do there."""
+
+    why: str
+    harm: str
+    resolution: int
 
 
 @torch.no_grad()
@@ -175,6 +195,7 @@ def extract_surface(
     chunk_size: int = 1 << 16,
     resolution_key: str = "resolution",
     refine_aliased: bool = True,
+    said: set | None = None,
 ) -> MeshingResult:
     """The surface of a 3D current as a triangle mesh whose border lies on Γ (see the module docstring).
 
@@ -191,77 +212,103 @@ def extract_surface(
             the paper's mesh).
         method: a key of ``METHODS``. "phase" (default, ``meshing.phase``): every sheet of the surface,
             whatever f's offset there. "level_set" (``meshing.level_set``): the paper's f = s, one level for
-            the whole surface (it misses sheets where f's jump does not straddle s, e.g. an undertrained
-            trefoil).
+            the whole surface (it misses sheets where f's jump does not straddle s).
         strip_rows: rows of triangles in each strip from the cut border to Γ. None: one row (triangles
-            τ long) for the phase, so minimal-surface meshes are as they were; about τ/voxel rows (triangles
-            about a voxel tall, no slivers) for every other method, the level set of reconstructions and
-            families among them.
+            τ long) for the phase; about τ/voxel rows (triangles about a voxel tall, no slivers) for every
+            other method.
         resolution_key: the setting that gave ``resolution``, named if its grid cannot fit in memory
             (``evaluation.mesh.resolution`` for a run's final mesh; an app's ``resolution``).
-        refine_aliased: phase method: where the current's jump is so thin that its phase turns by more than half
-            a turn between two nodes away from Γ (``grid_angle.aliased_edges``), mesh once more at 1.5× the
-            resolution (if that grid fits in memory), said in the log: marching cubes loses the sheet at such
-            edges (a sharpened catenoid at 128³: holes, +19 % of area; at 192³ closed, +0.6 %). Grids without
-            such edges (the trained trefoils of ``make run`` and of 300 vertices, at 128³) mesh as before. Level set:
-            where Newton moves more than ``DRAGGED_SHARE`` of the marched vertices by more than half a cell (f's jump
-            thinner than the grid, spikes: a 180-s hand reconstruction at 96³), the same.
+        refine_aliased: mesh once more at 1.5× the resolution (if that grid fits in memory, said in the log) where
+            the grid is too coarse for the current: phase, where the current's jump is so thin that its phase
+            turns by more than half a turn between two nodes away from Γ (``grid_angle.aliased_edges``; marching
+            cubes loses the sheet there); level set, where Newton moves more than ``DRAGGED_SHARE`` of the marched
+            vertices by more than half a cell (f's jump thinner than the grid: spikes).
+        said: the coarse-grid warnings already given in this chain of meshings (a family meshes many members on
+            one grid): each is given once per set; None: always.
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
+    settings = MeshSettings(resolution, delta, boundary_tube, newton_steps, min_component, min_alignment,
+                            close_boundary, method, strip_rows, chunk_size, resolution_key)
     options = {"level_blend": level_blend} if method == "level_set" else {}
-    finder = METHODS[method](current, chunk_size, **options)
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     bounds = mesh_region(loops, {"bounds": bounds, "padding": padding})
-    nodes, shape, voxel = _grid(bounds, resolution, resolution_key)
+    outcome = _mesh_once(current, METHODS[method](current, chunk_size, **options), loops, bounds, settings,
+                         refine_aliased, said)
+    if isinstance(outcome, _Refine):  # once: the finer grid is meshed as it comes
+        log.info("%s of the %s=%d grid, where marching cubes %s: meshed at %d instead.", outcome.why,
+                 resolution_key, resolution, outcome.harm, outcome.resolution)
+        settings = replace(settings, resolution=outcome.resolution)
+        outcome = _mesh_once(current, METHODS[method](current, chunk_size, **options), loops, bounds, settings,
+                             False, said)
+    return outcome
+
+
+def _finer_resolution(bounds: np.ndarray, settings: MeshSettings) -> int | None:
+    """1.5× the resolution, or None where that grid does not fit in memory."""
+    finer = math.ceil(1.5 * settings.resolution)
+    try:
+        grid_shape(bounds, finer, settings.resolution_key)  # the memory check only
+    except ConfigError:
+        return None
+    return finer
+
+
+def _refine_or_say(why: str, harm: str, bounds: np.ndarray, settings: MeshSettings) -> _Refine | None:
+    """A request to mesh finer where the grid is too coarse (``why``) and a finer one fits; else None, with a
+    warning that the finer grid does not fit in memory."""
+    finer = _finer_resolution(bounds, settings)
+    if finer is None:
+        log.warning("%s of the %s=%d grid, so its mesh may be wrong there; %s=%d does not fit in memory.", why,
+                    settings.resolution_key, settings.resolution, settings.resolution_key,
+                    math.ceil(1.5 * settings.resolution))
+        return None
+    return _Refine(why, harm, finer)
+
+
+def _say_widened_tube(settings: MeshSettings, voxel: float, tube: float, said: set | None) -> None:
+    """A warning that the grid's cells widened the boundary tube (once per ``said`` set and grid)."""
+    key = ("widened", settings.resolution_key, settings.resolution, round(voxel, 9))
+    if said is not None:
+        if key in said:
+            return
+        said.add(key)
+    resolution, name, boundary_tube = settings.resolution, settings.resolution_key, settings.boundary_tube
+    enough = (f"; {name}={math.ceil(resolution * 1.5 * voxel / boundary_tube)} or more keeps it as set"
+              if boundary_tube > 0 else "")
+    log.warning("%s=%d gives %.3g-wide cells, so the boundary tube is widened from %.3g to %.3g (1.5 cells): a "
+                "mesh this coarse can misplace its border and add area%s.", name, resolution, voxel,
+                boundary_tube, tube, enough)
+
+
+def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.ndarray, settings: MeshSettings,
+               refine: bool, said: set | None) -> MeshingResult | _Refine:
+    """Meshes the current once on the grid of ``settings`` over ``bounds`` (steps 1–6 of the module docstring), or,
+    with ``refine``, asks for a finer grid (``_Refine``) where this one is too coarse and a finer one fits."""
+    s = settings
+    nodes, shape, voxel = _grid(bounds, s.resolution, s.resolution_key)
     dev = device_of(current)
-    closed_area = 0.0
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
-    tube = max(boundary_tube, 1.5 * voxel) if close_boundary else 0.0
-
-    def finer_resolution(why: str) -> int | None:
-        """1.5× the resolution, or None (said in a warning) where that grid does not fit in memory. ``why``: what
-        this grid showed."""
-        finer = math.ceil(1.5 * resolution)
-        try:
-            grid_shape(bounds, finer, resolution_key)  # the memory check only
-        except ConfigError:
-            log.warning("%s of the %s=%d grid, so its mesh may be wrong there; %s=%d does not fit in memory.",
-                        why, resolution_key, resolution, resolution_key, finer)
-            return None
-        return finer
-
-    def mesh_finer(finer: int, why: str, harm: str) -> MeshingResult:
-        log.info("%s of the %s=%d grid, where marching cubes %s: meshed at %d instead.", why, resolution_key,
-                 resolution, harm, finer)
-        return extract_surface(current, finer, delta, boundary_tube, bounds, padding, newton_steps, min_component,
-                               min_alignment, close_boundary, method, strip_rows, level_blend, chunk_size,
-                               resolution_key, refine_aliased=False)
-
+    tube = max(s.boundary_tube, 1.5 * voxel) if s.close_boundary else 0.0
     aliased = getattr(finder, "aliased_points", None)
-    if refine_aliased and aliased is not None and len(aliased):
+    if refine and aliased is not None and len(aliased):
         starts, ends, _ = closed_loop_segments(loops)  # next to Γ Ω/2 turns fast anyway, and the tube is cut
-        count = int((segment_distance(aliased, starts, ends) > max(tube, boundary_tube) + 2.0 * voxel).sum())
+        count = int((segment_distance(aliased, starts, ends) > max(tube, s.boundary_tube) + 2.0 * voxel).sum())
         why = f"The current's phase turns by more than half a turn between nodes at {count} edges"
-        if count and (finer := finer_resolution(why)) is not None:
-            del vol, finder
-            return mesh_finer(finer, why, "would lose the sheet (its jump only a few cells thick)")
-    widened = tube > boundary_tube  # by the voxels: the border is cut and closed at this coarse a scale
-    if widened and (resolution_key, resolution, round(voxel, 9)) not in _WIDENED_SAID:  # once, not per member
-        _WIDENED_SAID.add((resolution_key, resolution, round(voxel, 9)))
-        enough = (f"; {resolution_key}={math.ceil(resolution * 1.5 * voxel / boundary_tube)} or more keeps it as set"
-                  if boundary_tube > 0 else "")
-        log.warning("%s=%d gives %.3g-wide cells, so the boundary tube is widened from %.3g to %.3g (1.5 cells): a "
-                    "mesh this coarse can misplace its border and add area%s.", resolution_key, resolution, voxel,
-                    boundary_tube, tube, enough)
+        if count and (finer := _refine_or_say(why, "would lose the sheet (its jump only a few cells thick)", bounds,
+                                              s)):
+            return finer
+    widened = tube > s.boundary_tube  # by the voxels: the border is cut and closed at this coarse a scale
+    if widened:
+        _say_widened_tube(s, voxel, tube, said)
     empty = MeshingResult(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), finder.reported_level, 0)
     if not (vol.min() < level < vol.max()):
         log.warning("%s in the meshing region; the mesh is empty.", finder.empty_reason())
         return empty
     verts, faces, _, _ = marching_cubes(vol, level=level, spacing=(voxel,) * 3)
+    del vol
     faces = finder.keep_marched(verts / voxel, faces)
-    # only the kept faces' vertices go on (the phase's marched set also holds φ ≈ θ off the surface: 60k
-    # vertices of which 13k are kept on the make-run trefoil, and the tube cut measures each one's distance)
+    # only the kept faces' vertices go on (the phase's marched set also holds φ ≈ θ off the surface)
     used, faces = np.unique(faces, return_inverse=True)
     verts = verts[used].astype(np.float64) + bounds[0]
     faces = faces.reshape(-1, 3).astype(np.int64)
@@ -270,59 +317,61 @@ def extract_surface(
         verts, faces = cut_tube(verts, faces, loops, tube)
         if before and not len(faces):  # not the current's fault: say which setting removed the surface
             log.warning("The boundary tube (radius %.3g about Γ) holds the whole level set: the mesh is empty; %s.",
-                        tube, f"raise {resolution_key} (the tube is 1.5 cells wide)" if widened
+                        tube, f"raise {s.resolution_key} (the tube is 1.5 cells wide)" if widened
                         else "lower boundary_tube")
             return empty
+    verts, faces, closed_area = _faces_carrying_the_current(current, finder, verts, faces, tube, s)
+    if len(faces) == 0:
+        log.warning("No part of the surface carries the current (|ω| ≥ %.3g); the mesh is empty.", s.delta)
+        return empty
+    if tube > 0 and s.newton_steps > 0:
+        marched, verts = verts, finder.newton(verts, voxel, s.newton_steps)
+        if refine and s.method == "level_set":  # the level set's own aliasing check
+            dragged = float((np.linalg.norm(verts - marched, axis=1) > 0.5 * voxel).mean())
+            why = (f"Newton moved {100 * dragged:.0f} % of the marched vertices more than half a cell onto the level "
+                   "set (f's jump thinner than the grid)")
+            if dragged > DRAGGED_SHARE and (finer := _refine_or_say(why, "raises spikes", bounds, s)):
+                return finer
+    if flux_sign(current, verts, faces, s.chunk_size) < 0:
+        faces = faces[:, ::-1].copy()
+    zipped = 0
+    if tube > 0:
+        rows = s.strip_rows if s.strip_rows is not None else 1 if s.method == "phase" else max(1, round(tube / voxel))
+        verts, faces, zipped = close_onto_loops(verts, faces, loops, voxel, tube, rows)
+    mesh = trimesh.Trimesh(verts, faces, process=True)
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.remove_unreferenced_vertices()
+    # Pinholes: a lone face inside the surface whose centroid fell under the |ω| or alignment test leaves a hole
+    # of three edges, which boundary_error would read as a tear; trimesh fills holes of three and four edges.
+    trimesh.repair.fill_holes(mesh)
+    if tube > 0:
+        _say_open_border(mesh, loops, tube, voxel, bounds, s.method, s.resolution_key, s.resolution)
+    return MeshingResult(mesh, finder.reported_level, zipped, closed_area)
 
+
+def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, faces: np.ndarray, tube: float,
+                                s: MeshSettings) -> tuple[np.ndarray, np.ndarray, float]:
+    """Step 3 of the module docstring: the faces whose centroid has |ω| ≥ δ (and, with a tube, that the method
+    says carry the current), without specks and, with a tube, without closed bubbles; unused vertices dropped.
+    → (vertices, faces, the closed bubbles' area)."""
+    closed_area = 0.0
     if len(faces):
-        centroids = torch.as_tensor(verts[faces].mean(1), dtype=torch.float32, device=dev)
-        _, omega = current.evaluate(centroids, chunk_size)
-        keep = omega.norm(dim=-1) >= delta
-        if tube > 0 and min_alignment > -1:
-            keep &= finder.keep_carrying(centroids, omega, min_alignment)
-        faces = _drop_small_components(verts, faces[keep.cpu().numpy()], min_component)
+        centroids = torch.as_tensor(verts[faces].mean(1), dtype=torch.float32, device=device_of(current))
+        _, omega = current.evaluate(centroids, s.chunk_size)
+        keep = omega.norm(dim=-1) >= s.delta
+        if tube > 0 and s.min_alignment > -1:
+            keep &= finder.keep_carrying(centroids, omega, s.min_alignment)
+        faces = _drop_small_components(verts, faces[keep.cpu().numpy()], s.min_component)
         if tube > 0:
             faces, closed_area = _drop_closed_components(verts, faces)
             if closed_area > 0:
                 log.info("Dropped closed components of area %.4g (they span no part of Γ).", closed_area)
     if len(faces) == 0:
-        log.warning("No part of the surface carries the current (|ω| ≥ %.3g); the mesh is empty.", delta)
-        return empty
+        return verts, faces, closed_area
     used = np.unique(faces)
     remap = np.full(len(verts), -1)
     remap[used] = np.arange(len(used))
-    verts, faces = verts[used], remap[faces]
-
-    if tube > 0 and newton_steps > 0:
-        marched, verts = verts, finder.newton(verts, voxel, newton_steps)
-        # the level set's own aliasing check: where f's jump is thinner than a cell, the marched surface misses the
-        # level set and Newton drags its vertices across cells, raising spikes (a 180-s hand reconstruction at 96³:
-        # 11 % of its vertices moved more than half a cell, UCD 0.00178 and 1.07× the target's area; at 192³ none,
-        # 0.00125 and 0.96×; every 1000-step part and minimal surface measured: none)
-        if refine_aliased and method == "level_set":
-            dragged = float((np.linalg.norm(verts - marched, axis=1) > 0.5 * voxel).mean())
-            why = (f"Newton moved {100 * dragged:.0f} % of the marched vertices more than half a cell onto the level "
-                   "set (f's jump thinner than the grid)")
-            if dragged > DRAGGED_SHARE and (finer := finer_resolution(why)) is not None:
-                del vol, finder, marched, verts, faces
-                return mesh_finer(finer, why, "raises spikes")
-    if flux_sign(current, verts, faces, chunk_size) < 0:
-        faces = faces[:, ::-1].copy()
-    zipped = 0
-    if tube > 0:
-        if strip_rows is None:
-            strip_rows = 1 if method == "phase" else max(1, round(tube / voxel))
-        verts, faces, zipped = close_onto_loops(verts, faces, loops, voxel, tube, strip_rows)
-    mesh = trimesh.Trimesh(verts, faces, process=True)
-    mesh.update_faces(mesh.nondegenerate_faces())
-    mesh.remove_unreferenced_vertices()
-    # Pinholes: a lone face inside the surface whose centroid fell under the |ω| or alignment test leaves a hole
-    # of three edges, and boundary_error, the border's distance from Γ, reads it as a tear (0.74 on a hand
-    # reconstruction, one face of 24106). trimesh fills holes of three and four edges, wound like their rims.
-    trimesh.repair.fill_holes(mesh)
-    if tube > 0:
-        _say_open_border(mesh, loops, tube, voxel, bounds, method, resolution_key, resolution)
-    return MeshingResult(mesh, finder.reported_level, zipped, closed_area)
+    return verts[used], remap[faces], closed_area
 
 
 def _say_open_border(mesh: trimesh.Trimesh, loops: list[np.ndarray], tube: float, voxel: float, bounds: np.ndarray,
@@ -331,10 +380,9 @@ def _say_open_border(mesh: trimesh.Trimesh, loops: list[np.ndarray], tube: float
     cells from Γ. On the faces of the meshed box ``bounds``: the box cuts the surface (a family member in the
     family's cube), so widen it. Elsewhere: a hole or a tear. With the phase, where the current's jump is only a
     few cells thick its phase can turn by more than half a turn between two nodes, and e^{iφ} sampled there turns
-    the other way: marching cubes puts the crossing on the off-surface side and the side test drops it (a sharpened
-    catenoid at 128³: the phase's 10–90 % rise 1.8–2.2 cells wide at the holes, +19 % of area, border 0.15 off Γ;
-    at 192³ closed, +0.6 %; ``extract_surface``'s ``refine_aliased`` now meshes such grids finer by itself). A
-    surface that Γ pierces (the Borromean rings) leaves a slit at any resolution."""
+    the other way: marching cubes puts the crossing on the off-surface side and the side test drops it
+    (``refine_aliased`` meshes such grids finer by itself). A surface that Γ pierces (the Borromean rings) leaves a
+    slit at any resolution."""
     edges = mesh.edges[trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)]
     if not len(edges):
         return
