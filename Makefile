@@ -17,8 +17,8 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e ".[dev,sweeps,media]"
 	touch $(STAMP)
 
-# the Anny extra, and its one-time cache (~0.8 GB in ~/.cache/anny; 1.6 min with the install on a fresh 2-core machine),
-# built once here so that `make data` and the generator's test then take seconds
+# the Anny extra and its one-time cache (~0.8 GB in ~/.cache/anny), built once here so that `make data` and the
+# generator's test then take seconds
 ANNY_STAMP := $(VENV)/.anny
 $(ANNY_STAMP): $(STAMP)
 	$(BIN)/pip install --quiet -e ".[anny]"
@@ -30,11 +30,8 @@ DATA_BODIES ?= 100
 data: $(ANNY_STAMP)
 	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
 
-# the quick start: 1500 steps of preset=cpu with recipe=sharp, the fast recipe (README "Looking at results": 59.3 s
-# whole on an idle, fast VM, mass bound 1.033 x the trefoil's 0.737, mesh 0.7352; the former quick start, 2000 steps
-# of preset=cpu alone, 83-106 s, 1.135, 0.7361); `make run RUN_STEPS=2000` 1.021 in 92-117 s (the recipe from 70 %,
-# before its clipping); `make run RUN_RECIPE=` runs
-# preset=cpu alone, `make run RUN_RECIPE= RUN_STEPS=3000` the preset's whole budget
+# the quick start: the trefoil's minimal surface, 1500 steps of preset=cpu with the fast recipe (recipe=sharp);
+# `make run RUN_RECIPE=` runs preset=cpu alone, `make run RUN_RECIPE= RUN_STEPS=3000` the preset's whole budget
 RUN_STEPS ?= 1500
 RUN_RECIPE ?= recipe=sharp
 run: setup

@@ -25,7 +25,7 @@ import trimesh
 from deepcurrents.data.recon import read_target_mesh
 from deepcurrents.data.targets import MeshTarget, distance_to_loops
 from deepcurrents.losses import current_loss, surface_loss
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 NETS = {
     "cpu_preset": {"num_frequencies": 256, "width": 128, "depth": 3},
@@ -76,7 +76,7 @@ def main() -> None:
 
     for key, net in NETS.items():
         loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in target.loops]
-        current = NeuralCurrent(3, loops=loops, **net)
+        current = neural_current(3, loops=loops, **net)
         opt = torch.optim.Adam(current.parameters(), lr=1e-3)
 
         def step(current=current, opt=opt):

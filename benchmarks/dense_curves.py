@@ -33,7 +33,7 @@ import torch
 from deepcurrents.geometry import biot_savart, circle, solid_angle
 from deepcurrents.geometry.curves import enneper
 from deepcurrents.geometry.polyline import resample_loop
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_args import check_range  # noqa: E402  (a sibling module, not a package)
@@ -116,7 +116,7 @@ def alpha_times(sizes: list[int], repeats: int, max_pairs: float) -> list[dict]:
 
 def network_step_seconds(repeats: int) -> float:
     """One training step of preset=cpu's network (RFF 256, width 128, depth 3) without α, for scale."""
-    current = NeuralCurrent(3, loops=[torch.as_tensor(circle(0.5, n=3), dtype=torch.float32)], num_frequencies=256,
+    current = neural_current(3, loops=[torch.as_tensor(circle(0.5, n=3), dtype=torch.float32)], num_frequencies=256,
                             width=128, depth=3)
     current.alpha = lambda x: torch.zeros_like(x)  # the network's share only
     opt = torch.optim.Adam(current.parameters(), lr=1e-3)

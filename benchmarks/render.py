@@ -30,7 +30,7 @@ from deepcurrents.eval.render import (
 )
 from deepcurrents.eval.render.volume import _box_intersection
 from deepcurrents.geometry import trefoil
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 
 def sync(device: torch.device) -> None:
@@ -60,7 +60,7 @@ def main() -> None:
     torch.manual_seed(0)
     loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in trefoil(100)]
     # the CPU preset's network (conf/preset/cpu.yaml)
-    current = NeuralCurrent(3, loops=loops, num_frequencies=256, width=128, depth=3, rff_seed=0).to(device).eval()
+    current = neural_current(3, loops=loops, num_frequencies=256, width=128, depth=3, rff_seed=0).to(device).eval()
     settings = DensitySettings()
 
     grid_s = timed(lambda: proposal_grid(current, preset["grid"], settings), device, args.repeats)

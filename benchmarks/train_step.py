@@ -43,7 +43,7 @@ from deepcurrents.eval.metrics import mass_estimate
 from deepcurrents.experiments.runner import keep_freed_memory
 from deepcurrents.geometry import trefoil
 from deepcurrents.losses import current_loss
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 from deepcurrents.nn.field_gradient import matmul_precision_scope
 
 
@@ -184,7 +184,7 @@ def main():
     kept = False if args.no_keep_freed_memory else keep_freed_memory()
     device = torch.device(args.device)
     torch.manual_seed(0)
-    model = NeuralCurrent(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()],
+    model = neural_current(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()],
                           **NETS[args.net]).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=5e-4)
     steps = {v: make_step(model, opt, args.samples, device, v) for v in VARIANTS}

@@ -268,7 +268,7 @@ TRAIN_CASES = [
      r"data\.num_workers='all' must be an integer ≥ 0"),
     # a key added with '+' that no constructor takes: Hydra passed it on and the constructor's TypeError came out
     ("misspelt network key", overrides("experiment=minimal_trefoil", "+model.net.widht=64"),
-     r"model\.net\.widht is not a setting NeuralCurrent takes"),
+     r"model\.net\.widht is not a setting neural_current takes"),
     ("misspelt data key", overrides("experiment=minimal_trefoil", "+data.widht=3"),
      r"data\.widht is not a setting MinimalSurfaceDataModule takes"),
     # in process (no Hydra command line to say which was added): the one beside CurrentModule's _target_, not the

@@ -14,7 +14,7 @@ from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import circle
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 R = 0.5
 
@@ -23,7 +23,7 @@ R = 0.5
 def untrained():
     """f ≡ const (zero-initialised output): ω = alpha_scale·α, and its phase mesh (the disk)."""
     torch.manual_seed(0)
-    current = NeuralCurrent(3, loops=[torch.tensor(circle(R, n=128)).float()], num_frequencies=8, width=8, depth=1)
+    current = neural_current(3, loops=[torch.tensor(circle(R, n=128)).float()], num_frequencies=8, width=8, depth=1)
     result = extract_surface(current, resolution=40)
     return current, result
 

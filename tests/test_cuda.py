@@ -18,7 +18,7 @@ from deepcurrents.geometry import trefoil
 from deepcurrents.geometry.biot_savart import biot_savart
 from deepcurrents.losses import current_loss
 from deepcurrents.models.loading import load_module
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device (CI has none)")
 
@@ -46,7 +46,7 @@ def test_current_and_its_loss_gradient_on_cuda(gradient, precision, tolerance):
     lands near 1e-6 (H200: ω 1.2e-6, gradient 1.9e-7); ``matmul_precision=medium`` (TF32 products, 10-bit
     mantissa) near 1e-3 (H200: ω 4.5e-3, gradient 8.6e-4)."""
     torch.manual_seed(0)
-    reference = NeuralCurrent(3, loops=[torch.tensor(loop) for loop in trefoil()], num_frequencies=64, width=64,
+    reference = neural_current(3, loops=[torch.tensor(loop) for loop in trefoil()], num_frequencies=64, width=64,
                               depth=3).double()
     with torch.no_grad():  # a non-zero output layer, so that ∇f matters beside α
         for p in reference.parameters():
@@ -77,7 +77,7 @@ def test_a_training_step_on_cuda_never_waits_for_the_gpu():
     the device) and that read. Its body has run on an H200 outside pytest (passed; failed with the former blocking
     copy), not yet through pytest there."""
     torch.manual_seed(0)
-    model = NeuralCurrent(3, loops=[torch.tensor(loop, dtype=torch.float32) for loop in trefoil()],
+    model = neural_current(3, loops=[torch.tensor(loop, dtype=torch.float32) for loop in trefoil()],
                           num_frequencies=64, width=64, depth=3, phase_sharpening=2.0,
                           phase_sharpening_start=0.5).cuda()
     model.set_progress(1.0)  # κ at its full 2: the sharpening is applied

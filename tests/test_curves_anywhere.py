@@ -31,7 +31,7 @@ from deepcurrents.geometry.curves import (
 )
 from deepcurrents.geometry.polyline import closed_loop_segments, polyline_hausdorff, resample_loop
 from deepcurrents.losses import current_loss
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 # the disk test's small network (tests/test_minimal_training.py), quiet
 SMALL = QUIET_CPU + [
@@ -212,7 +212,7 @@ def test_awkward_curves_train_and_mesh(tmp_path, kind):
     if kind == "through_sample":
         # samples exactly on a vertex and on a side of Γ: ω, the loss and its gradients stay finite
         on_curve = torch.tensor([[0.0, -0.5, 0.0], [-0.5, 0.0, 0.0], [0.25, -0.5, 0.0], [0.0, 0.0, 0.0]])
-        current = NeuralCurrent(3, loops=[torch.as_tensor(square, dtype=torch.float32)], num_frequencies=16,
+        current = neural_current(3, loops=[torch.as_tensor(square, dtype=torch.float32)], num_frequencies=16,
                                 width=16, depth=2)
         batch = torch.cat([on_curve, torch.rand(60, 3) * 2 - 1])
         _, omega = current(batch, create_graph=True)

@@ -200,8 +200,9 @@ def test_near_interpolation_points_keep_the_uniform_mean_and_sit_on_both_shapes(
     # the loss through them: finite, and gradients reach the decoder
     loops = torch.as_tensor(disc_mesh(SHAPES["000_cap"], radius=0.25).vertices[-24:], dtype=torch.float32)
     module.train()
-    loss = module.interpolation.loss(module.family, module.family.latents.weight[:2].detach(), loops[None, None].repeat(2, 1, 1, 1),
-                                     torch.ones(2, 1, 24, dtype=torch.bool), 100, surface)
+    loss = module.interpolation.loss(module.family, module.family.latents.weight[:2].detach(),
+                                     loops[None, None].repeat(2, 1, 1, 1), torch.ones(2, 1, 24, dtype=torch.bool), 100,
+                                     surface)
     loss.backward()
     assert torch.isfinite(loss) and module.family.mlp.net[0].weight.grad.abs().sum() > 0
     with pytest.raises(ConfigError, match=r"model.interpolation_sampling.near_sigma=0 must be positive"):

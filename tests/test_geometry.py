@@ -402,16 +402,16 @@ def test_current_keeps_its_loops_segment_table_and_follows_a_loaded_boundary():
     """NeuralCurrent.field hands biot_savart a segment table made once per dtype and device: the same α bit for bit
     as from the loops, and a state with other loops (same sizes) loaded into the current gives their α."""
     from deepcurrents.geometry import biot_savart, circle, trefoil
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
     torch.manual_seed(0)
     knot = [torch.tensor(lp, dtype=torch.float32) for lp in trefoil(n=64)]
-    current = NeuralCurrent(3, loops=knot, num_frequencies=4, width=8, depth=1)
+    current = neural_current(3, loops=knot, num_frequencies=4, width=8, depth=1)
     x = torch.rand(50, 3) * 2 - 1
     assert torch.equal(current.field(x), biot_savart(x, knot))
     assert torch.equal(current.field(x), biot_savart(x, knot))  # from the kept table
     assert torch.equal(current.double().field(x.double()), biot_savart(x.double(), [lp.double() for lp in knot]))
     ring = [torch.tensor(circle(0.5, n=64), dtype=torch.float32)]
-    other = NeuralCurrent(3, loops=ring, num_frequencies=4, width=8, depth=1)
+    other = neural_current(3, loops=ring, num_frequencies=4, width=8, depth=1)
     current.float().load_state_dict(other.state_dict())
     assert torch.equal(current.field(x), biot_savart(x, ring))

@@ -83,10 +83,10 @@ def test_current_with_grid_features_has_omega_equal_to_grad_f_plus_alpha():
     """NeuralCurrent with grid features: ω − alpha_scale·α is ∇f by central differences (float64), and the
     training backward reaches the grid table."""
     from deepcurrents.geometry import circle
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
     torch.manual_seed(0)
-    current = NeuralCurrent(3, loops=[torch.tensor(circle(0.5, n=32))], num_frequencies=8, width=16, depth=2,
+    current = neural_current(3, loops=[torch.tensor(circle(0.5, n=32))], num_frequencies=8, width=16, depth=2,
                             zero_init_output=False, rff_seed=0,
                             grid={"levels": 2, "base_resolution": 2, "finest_resolution": 5, "init_scale": 0.5})
     current = current.double()
@@ -122,10 +122,10 @@ def test_hand_written_pass_with_grid_features_matches_autograd(rff, coarse_to_fi
     parameter, the grid's table included, for a loss that sees both f and ω."""
     from deepcurrents.geometry import circle
     from deepcurrents.losses import current_loss
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
     torch.manual_seed(5)
-    current = NeuralCurrent(3, loops=[torch.tensor(circle(0.5, n=32))], num_frequencies=8, width=16, depth=2,
+    current = neural_current(3, loops=[torch.tensor(circle(0.5, n=32))], num_frequencies=8, width=16, depth=2,
                             zero_init_output=False, rff_seed=0, rff=rff, coarse_to_fine=coarse_to_fine,
                             grid={"levels": 3, "base_resolution": 2, "finest_resolution": 7, "table_size": 50,
                                   "init_scale": 0.5}).double()

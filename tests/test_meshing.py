@@ -436,10 +436,10 @@ def test_phase_curve_of_an_untrained_2d_current_is_the_segment():
     set f = s finds nothing in a constant f."""
     from deepcurrents.eval.meshing import extract_curve_2d
     from deepcurrents.eval.metrics import curve_boundary_error, curve_length
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
     torch.manual_seed(0)
-    current = NeuralCurrent(dim=2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+    current = neural_current(dim=2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
                             num_frequencies=8, width=8, depth=1).eval()
     # 127 cells: no grid row on y = 0, where sin(φ − θ) would vanish exactly at the nodes of this symmetric case
     # δ = 0: the untrained |ω| = s|α| is below the default δ in the middle of the segment
@@ -649,9 +649,9 @@ def test_a_grid_that_aliases_the_phase_away_from_gamma_is_meshed_finer(monkeypat
     from deepcurrents.eval.meshing.phase import PhaseMethod
 
     torch.manual_seed(0)
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
-    current = NeuralCurrent(3, loops=[torch.tensor(circle(0.5, n=96)).float()], num_frequencies=8, width=8, depth=1)
+    current = neural_current(3, loops=[torch.tensor(circle(0.5, n=96)).float()], num_frequencies=8, width=8, depth=1)
     plain = extract_surface(current, resolution=24)
     calls = []
     sample = PhaseMethod.sample

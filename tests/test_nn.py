@@ -9,12 +9,12 @@ import torch
 from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import biot_savart, circle, trefoil
 from deepcurrents.losses import current_loss, surface_loss
-from deepcurrents.nn import FieldMLP, FourierFeatures, NeuralCurrent
+from deepcurrents.nn import FieldMLP, FourierFeatures, neural_current
 
 
 def paper_current(**kw):
     kw.setdefault("zero_init_output", False)  # a non-constant f, so that gradients are non-trivial
-    return NeuralCurrent(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()], **kw)
+    return neural_current(3, loops=[torch.tensor(l, dtype=torch.float32) for l in trefoil()], **kw)
 
 
 def test_zero_initialised_output_starts_from_alpha():
@@ -150,7 +150,7 @@ def test_surface_hinge_of_a_batch_by_hand():
 
 
 def test_2d_current():
-    model = NeuralCurrent(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+    model = neural_current(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
                           num_frequencies=8, width=8, depth=1)
     f, w = model(torch.rand(10, 2) * 2 - 1, create_graph=False)
     assert f.shape == (10,) and w.shape == (10, 2)
@@ -217,7 +217,7 @@ def test_hand_written_gradient_network_matches_autograd(activation, rff, dim):
     if dim == 3:
         model = paper_current(num_frequencies=16, width=12, depth=3, activation=activation, rff=rff)
     else:
-        model = NeuralCurrent(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+        model = neural_current(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
                               num_frequencies=16, width=12, depth=3, activation=activation, rff=rff,
                               zero_init_output=False)
     model = model.double()
@@ -550,7 +550,7 @@ def test_phase_harmonics_reach_the_disk_with_constant_outputs():
     x = torch.rand(1 << 16, 3, generator=gen, dtype=torch.float64) * 2 - 1
 
     def bound(K):
-        model = NeuralCurrent(3, loops=loops, num_frequencies=4, width=4, depth=1, phase_harmonics=K).double()
+        model = neural_current(3, loops=loops, num_frequencies=4, width=4, depth=1, phase_harmonics=K).double()
         with torch.no_grad():
             model.mlp.net[-1].bias.zero_()
             for k in range(1, K + 1):  # saw(t) = 2 Σ (−1)^{k+1} sin(kt)/k, Fejér factors 1 − k/(K + 1)
@@ -572,5 +572,5 @@ def test_phase_harmonics_refuses_bad_values_in_one_sentence():
     with pytest.raises(ConfigError, match="model.net.phase_harmonics"):
         paper_current(phase_harmonics=2.5)
     with pytest.raises(ConfigError, match="3D boundary"):
-        NeuralCurrent(2, poles=torch.tensor([[0.0, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+        neural_current(2, poles=torch.tensor([[0.0, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
                       phase_harmonics=4)

@@ -12,7 +12,8 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import circle
 from deepcurrents.geometry.biot_savart import solid_angle
 from deepcurrents.geometry.phase_map import von_mises_offset, von_mises_slope
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import NeuralCurrent, neural_current
+from deepcurrents.nn.extensions import RAMP
 
 
 @pytest.mark.parametrize("kappa", [0.5, 4.0, 30.0])
@@ -50,7 +51,7 @@ def test_von_mises_offset_first_met_in_inference_mode_still_trains():
 def _current(**kwargs) -> NeuralCurrent:
     torch.manual_seed(0)
     loop = torch.tensor(circle(0.5, n=64)).double()
-    current = NeuralCurrent(3, loops=[loop], num_frequencies=8, width=16, depth=2, zero_init_output=False,
+    current = neural_current(3, loops=[loop], num_frequencies=8, width=16, depth=2, zero_init_output=False,
                             **kwargs).double()
     return current
 
@@ -60,7 +61,7 @@ def test_sharpened_current_is_the_network_current_times_psi_prime():
     x = torch.rand(300, 3, dtype=torch.float64) * 2 - 1
     f0, w0 = plain(x, create_graph=False)
     f1, w1 = sharp(x, create_graph=False)
-    bias = float(plain.mlp.net[-1].bias[0])  # φ without f_θ's output bias (NeuralCurrent._sharpen)
+    bias = float(plain.mlp.net[-1].bias[0])  # φ without f_θ's output bias (nn.extensions.sharpening)
     phase = (f0 - bias) / (2 * plain.alpha_scale) + 0.5 * solid_angle(x, plain.loops)
     level = float(sharp.sharpening_level)
     probes = torch.quasirandom.SobolEngine(3, scramble=True, seed=0).draw(4096).double() * 2 - 1
@@ -110,7 +111,7 @@ def test_sharpening_opens_with_the_budget():
     sharp = _current(phase_sharpening=8.0, phase_sharpening_start=0.5)
     assert sharp.follows_progress and float(sharp.sharpening) == 0.0
     sharp.set_progress(0.6)
-    assert float(sharp.sharpening) == pytest.approx(8.0 * 0.1 / NeuralCurrent.HARMONICS_RAMP)
+    assert float(sharp.sharpening) == pytest.approx(8.0 * 0.1 / RAMP)
     sharp.set_progress(0.95)
     assert float(sharp.sharpening) == 8.0
 
@@ -118,7 +119,7 @@ def test_sharpening_opens_with_the_budget():
 def test_sharpened_2d_current_is_grad_f_plus_alpha():
     """In 2D the phase is f/alpha_scale + Σ s_j·angle(x − p_j): ω = ∇f + alpha_scale·α by central differences."""
     torch.manual_seed(1)
-    sharp = NeuralCurrent(2, poles=torch.tensor([[-0.4, 0.0], [0.4, 0.1]]), signs=torch.tensor([-1.0, 1.0]),
+    sharp = neural_current(2, poles=torch.tensor([[-0.4, 0.0], [0.4, 0.1]]), signs=torch.tensor([-1.0, 1.0]),
                           num_frequencies=8, width=16, depth=2, zero_init_output=False, phase_sharpening=4.0).double()
     sharp(torch.rand(200, 2, dtype=torch.float64) * 2 - 1, create_graph=False)
     x = torch.tensor([[0.1, 0.5], [-0.6, -0.3], [0.7, -0.8]], dtype=torch.float64)
@@ -154,7 +155,7 @@ def test_meshers_read_a_sharpened_current_through_its_network_phase():
 
     torch.manual_seed(0)
     loop = torch.tensor(circle(0.5, n=64)).float()
-    sharp = NeuralCurrent(3, loops=[loop], num_frequencies=8, width=8, depth=1, phase_sharpening=8.0)
+    sharp = neural_current(3, loops=[loop], num_frequencies=8, width=8, depth=1, phase_sharpening=8.0)
     sharp(torch.rand(64, 3) * 2 - 1, create_graph=False)  # opens
     with level_set_view(sharp):
         assert float(sharp.sharpening) == 0.0
@@ -193,10 +194,10 @@ def test_loaded_checkpoint_carries_the_opened_harmonics_and_sharpening():
     assert float(fresh.sharpening_level) == float(trained.sharpening_level)
     f_loaded, w_loaded = fresh(x, create_graph=False)
     assert torch.equal(f_loaded, f_trained) and torch.equal(w_loaded, w_trained)
-    with trained.unsharpened():
+    with trained.level_set_view():
         w_network = trained(x, create_graph=False)[1]
     assert not torch.allclose(w_network, w_trained)
-    with fresh.unsharpened():  # and the copies follow the buffers through the context
+    with fresh.level_set_view():  # and the copies follow the buffers through the context
         assert float(fresh.sharpening) == 0.0
         assert torch.equal(fresh(x, create_graph=False)[1], w_network)
     assert float(fresh.sharpening) == float(trained.sharpening) == pytest.approx(3.0 * 0.5)
@@ -210,7 +211,7 @@ def test_the_2d_curve_extractor_reads_a_sharpened_current_through_its_network_ph
     from deepcurrents.eval.meshing import extract_curve_2d
 
     torch.manual_seed(0)
-    sharp = NeuralCurrent(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+    sharp = neural_current(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
                           num_frequencies=8, width=8, depth=1, phase_sharpening=8.0)
     sharp(torch.rand(64, 2) * 2 - 1, create_graph=False)  # opens
     grad_modes = []

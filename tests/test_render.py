@@ -24,7 +24,7 @@ from deepcurrents.eval.render import (
 )
 from deepcurrents.eval.render.volume import _sample_along
 from deepcurrents.geometry import circle
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 JUMP_3D = 4 * math.pi
 
@@ -191,7 +191,7 @@ def test_turntable_has_the_requested_frames(tmp_path):
 
 def test_2d_picture_draws_the_metric_as_oriented_ellipses(tmp_path):
     torch.manual_seed(0)
-    current = NeuralCurrent(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
+    current = neural_current(2, poles=torch.tensor([[-0.5, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
                             num_frequencies=8, width=8, depth=1)
 
     def metric(x):  # B = diag(1, 0): only the x component of ω costs

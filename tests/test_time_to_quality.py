@@ -201,7 +201,7 @@ def test_sample_pool_carries_alpha_and_gives_the_same_current(kind):
     from x, and the pooled weights are those of the sampler's density."""
     from deepcurrents.data import MinimalSurfaceDataModule
     from deepcurrents.geometry import biot_savart
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
     dm = MinimalSurfaceDataModule(curve="trefoil", curve_vertices=40, num_samples=128,
                                   sampling={"kind": kind, "pool": 4096, "resolution": 8})
@@ -209,7 +209,7 @@ def test_sample_pool_carries_alpha_and_gives_the_same_current(kind):
     assert batch["x"].shape == (128, 3) and batch["alpha"].shape == (128, 3)
     loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in dm.boundary.loops]
     torch.testing.assert_close(batch["alpha"], biot_savart(batch["x"], loops))
-    current = NeuralCurrent(loops=loops, num_frequencies=8, width=8, depth=1, zero_init_output=False)
+    current = neural_current(loops=loops, num_frequencies=8, width=8, depth=1, zero_init_output=False)
     _, w_pool = current(batch["x"], create_graph=False, alpha=batch["alpha"])
     _, w_direct = current(batch["x"], create_graph=False)
     torch.testing.assert_close(w_pool, w_direct)
@@ -226,9 +226,9 @@ def test_mass_estimate_stops_at_the_requested_precision():
     run's estimate over the same first samples, and a precision it cannot reach uses every sample."""
     from deepcurrents.eval.metrics import mass_estimate
     from deepcurrents.geometry import circle
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
-    current = NeuralCurrent(loops=[torch.as_tensor(circle(0.5, n=32), dtype=torch.float32)], num_frequencies=8,
+    current = neural_current(loops=[torch.as_tensor(circle(0.5, n=32), dtype=torch.float32)], num_frequencies=8,
                             width=8, depth=1)
     info: dict = {}
     early, early_err = mass_estimate(current, 1 << 14, seed=3, chunk_size=1 << 10, rel_stderr=0.5,
@@ -301,9 +301,9 @@ def test_phase_mesh_of_an_untrained_circle_is_the_disk():
     the flat disk (a level set of the solid angle): area πR² to 1%."""
     from deepcurrents.eval.meshing import extract_surface
     from deepcurrents.geometry import circle
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
-    current = NeuralCurrent(loops=[torch.as_tensor(circle(0.5, n=64), dtype=torch.float32)], num_frequencies=8,
+    current = neural_current(loops=[torch.as_tensor(circle(0.5, n=64), dtype=torch.float32)], num_frequencies=8,
                             width=8, depth=1)
     result = extract_surface(current, resolution=40, method="phase")
     assert result.mesh.area == pytest.approx(math.pi * 0.25 * math.sin(2 * math.pi / 64) / (2 * math.pi / 64),
@@ -351,11 +351,11 @@ def test_narrow_band_phase_is_the_dense_phase_where_the_mesh_is(curve, scale):
     from deepcurrents.eval.meshing import phase as phase_module
     from deepcurrents.eval.meshing.grid_angle import grid_phase
     from deepcurrents.eval.meshing.surface import _grid, region_of_interest
-    from deepcurrents.nn import NeuralCurrent
+    from deepcurrents.nn import neural_current
 
     loops = [np.asarray(lp, dtype=np.float64) for lp in getattr(geometry, curve)(60)]
     torch.manual_seed(0)
-    current = NeuralCurrent(loops=[torch.as_tensor(lp, dtype=torch.float32) for lp in loops], num_frequencies=16,
+    current = neural_current(loops=[torch.as_tensor(lp, dtype=torch.float32) for lp in loops], num_frequencies=16,
                             width=16, depth=2, sigma=1.0)
     with torch.no_grad():
         current.mlp.net[-1].weight.normal_(0.0, scale)

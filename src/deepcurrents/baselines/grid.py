@@ -29,14 +29,14 @@ from deepcurrents.eval.metrics import mass_estimate, mass_to_area
 from deepcurrents.geometry import biot_savart
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.models.current_module import input_frame, input_mesh, metrics_in_input_units
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 log = logging.getLogger(__name__)
 
 def matched_resolution(net: dict[str, Any], rff: dict[str, Any] | None, loops: list[torch.Tensor]) -> tuple[int, int]:
     """The grid size N with N³ closest to the parameter count of the network ``net`` and ``rff`` describe
     (trainable weights + frozen Fourier frequencies, as the paper counts 725,249 → 90³). → (N, count)."""
-    network = NeuralCurrent(dim=3, loops=loops, **network_kwargs(net, rff))
+    network = neural_current(dim=3, loops=loops, **network_kwargs(net, rff))
     count = sum(p.numel() for p in network.parameters()) + network.encoding.frequencies.numel()
     return max(4, round(count ** (1.0 / 3.0))), count
 

@@ -69,7 +69,7 @@ def mesh_and_measure(module: AutodecoderModule, z: torch.Tensor, loops: list[np.
     return {"mesh": f"{stem}.ply", "boundary": f"{stem}_boundary.obj", **summary, "_mesh": mesh, "_loops": loops}
 
 
-CLOSED_TOLERANCE = 1e-6  # a zipped border lies on Γ to rounding (≤ 1e-8 measured); a hole's border is voxels away
+CLOSED_TOLERANCE = 1e-6  # a zipped border lies on Γ to rounding; a hole's border is voxels away
 
 
 def closed_on_boundary(record: dict[str, Any]) -> bool:
@@ -87,7 +87,7 @@ VANISHED_FRACTION = 0.25  # a member with less than this of the smaller end shap
 def mark_vanished(records: list[dict[str, Any]], reference_areas: list[float]) -> None:
     """Adds ``area_fraction`` (mesh area / the smaller of ``reference_areas``, the two end shapes' own meshes) and
     ``vanished`` (below ``VANISHED_FRACTION``, or empty) to each record in place: a member can be closed on its Γ
-    and still be no hand, a small cap across the wrist (0.015 against 0.13 for the smaller hand, README)."""
+    and still be no hand, a small cap across the wrist."""
     smaller = float(min(reference_areas)) if reference_areas else 0.0
     for r in records:
         area = r.get("mesh_area") if r.get("boundary_error") is not None else 0.0

@@ -128,8 +128,8 @@ def read_oriented_points(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 # Share of 8-nearest-neighbour pairs whose normals point opposite ways above which a cloud's normals are taken to be
-# inconsistently oriented. Measured on the generated parts' surfaces, 1000-20000 samples with their true normals:
-# 0-4.3 % (hands, at the fingers, the most); with a tenth of the normals flipped 10-21 %, with 30 % flipped 40-44 %.
+# inconsistently oriented: consistent normals stay well below it even at a hand's fingers, a tenth flipped is above
+# (docs/notes/code.md).
 OPPOSED_NORMALS_WARNING = 0.1
 
 
@@ -364,8 +364,7 @@ class ReconstructionDataModule(L.LightningDataModule):
         estimated with each point's share of the area, the square of the distance to its 8th neighbour (scans
         sample unevenly). Where the cloud has a clear net direction (that mean unit normal ≥ 0.2 long: a cap or
         a disk, not a tube or a nearly closed part) and Γ's vector area points against it (cosine < −0.5), every
-        loop is reversed, with a warning: traced the other way, the run fits the surface's complement (a mesh
-        1.7× the target's area in a probe)."""
+        loop is reversed, with a warning: traced the other way, the run fits the surface's complement."""
         from scipy.spatial import cKDTree
 
         vector_area = sum(0.5 * np.cross(lp, np.roll(lp, -1, 0)).sum(0) for lp in loops)

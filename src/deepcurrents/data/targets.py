@@ -187,7 +187,7 @@ class MeshTarget:
     def __init__(self, vertices, faces, loops: list[np.ndarray] | None = None,
                  topology: tuple[np.ndarray, np.ndarray] | None = None):
         """``topology``: (edge_on_boundary (F, 3), vertex_on_boundary (V,)) of these faces if already known
-        (``moved``); they depend on the faces alone, and finding the border edges was 40 % of building a target."""
+        (``moved``); they depend on the faces alone, and finding the border edges is much of building a target."""
         self.vertices = _as_numpy(vertices, np.float64)
         self.faces = _as_numpy(faces, np.int64)
         self.loops = [np.asarray(lp, np.float64) for lp in loops] if loops is not None else \

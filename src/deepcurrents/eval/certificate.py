@@ -17,9 +17,9 @@ from a mixture of the uniform density and cells around the mesh (∝ mesh area p
 neighbouring cells; ``data.sampling.mesh_sampler``), weighted by 1/q: an unbiased estimate whatever the cells
 (the uniform part keeps q > 0). Next to Γ every level of the phase meets, and |ω'| ∼ κ/r has no finite variance
 under those samples: a rare sample very close to Γ decides the estimate, and the sample standard error reads
-low exactly when the estimate does (on a trained circle, 17 seeds: spread 0.0079 against a reported 0.005-0.0075,
-9 of 17 below the exact area). So, as ``eval.metrics.mass_estimate`` does, a tube about Γ is integrated apart,
-by samples with density ∝ 1/r about it (``geometry.polyline.sample_tube``), where |ω'|·r stays bounded.
+low exactly when the estimate does (docs/notes/meshing.md). So, as ``eval.metrics.mass_estimate`` does, a tube
+about Γ is integrated apart, by samples with density ∝ 1/r about it (``geometry.polyline.sample_tube``), where
+|ω'|·r stays bounded.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Reading a current for its level sets: a sharpened current (``NeuralCurrent`` with ``phase_sharpening``) through
+"""Reading a current for its level sets: a sharpened current (``nn.extensions.sharpening``) through
 its network's own phase, whose level sets are the same (ψ is monotone) and which is smooth where ψ∘φ is steep."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from torch import nn
 
 
 def level_set_view(current: nn.Module) -> AbstractContextManager:
-    """A context in which ``current`` is read for its level sets: a current with ``unsharpened`` (a sharpened
-    ``NeuralCurrent``) is the network's own current there; any other current as it is."""
-    view = getattr(current, "unsharpened", None)
+    """A context in which ``current`` is read for its level sets: a current with ``level_set_view`` (a
+    ``NeuralCurrent`` and its extensions) as that says; any other current as it is."""
+    view = getattr(current, "level_set_view", None)
     return view() if view is not None else nullcontext()
 
 

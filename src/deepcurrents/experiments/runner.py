@@ -61,10 +61,9 @@ from deepcurrents.models.loading import check_resumable
 log = logging.getLogger("deepcurrents")
 
 # glibc's malloc returns every block of 32 MB or more to the system when it is freed, so each training step of the
-# paper network (4096 samples × 2048 features = 32 MB per feature array) page-faulted its arrays back in: 25,000
-# faults and about 50 ms of system time per step on 2 CPU cores. Blocks below this size are reused from the heap.
-# The price: the heap keeps what it freed, so a peak can be higher (the mass estimate through the autograd path
-# peaked at 2.1-2.5 GB instead of 1.7-1.9; through the default closed form at 1.5 GB either way).
+# paper network (4096 samples × 2048 features = 32 MB per feature array) page-faulted its arrays back in. Blocks
+# below this size are reused from the heap; the price is a higher peak where the heap keeps what it freed
+# (docs/notes/speed.md).
 MMAP_THRESHOLD = 256 << 20
 
 
@@ -90,7 +89,8 @@ def instantiate(node: DictConfig, **kwargs):
     except InstantiationException as err:
         cause = err.__cause__
         while cause is not None and not isinstance(cause, UserInputError):
-            unknown = re.search(r"([\w.]+)\.__init__\(\) got an unexpected keyword argument '([^']+)'", str(cause))
+            unknown = re.search(r"([\w.]+?)(?:\.__init__)?\(\) got an unexpected keyword argument '([^']+)'",
+                                str(cause))
             if isinstance(cause, TypeError) and unknown is not None:
                 message = unknown_key_message(node, *unknown.groups())
                 if message is not None:  # else no key of the config has that name: a programming error

@@ -367,17 +367,14 @@ def warn_retraced(loops: list[np.ndarray], source: str) -> None:
 
 
 # Curves are kept this far inside the box U = [-1, 1]^3: f has no condition on ∂U, so a current may end on the
-# wall instead of spanning Γ. Measured (benchmarks/curve_margin.py, converged grid currents of Enneper's curve at
-# equal resolution per curve size): area/exact 0.32 at max|x| = 0.9, 0.56 at 0.8, 0.87 at 0.7, 1.3% low at
-# 0.65, unchanged from 0.6 down. "auto" normalises a curve reaching beyond SAFE_EXTENT into the centred
-# box of half-size NORMALIZED_EXTENT (a further 0.1 of margin for curves that bend towards the wall more).
+# wall instead of spanning Γ: the spanned area falls short once a curve reaches past 0.6 of the box
+# (benchmarks/curve_margin.py; docs/notes/code.md). "auto" normalises a curve reaching beyond SAFE_EXTENT into the
+# centred box of half-size NORMALIZED_EXTENT (a further 0.1 of margin for curves that bend towards the wall more).
 SAFE_EXTENT = 0.6
 NORMALIZED_EXTENT = 0.5
 # "auto" also scales up a curve whose bounding box's largest half-size is below SMALL_EXTENT: the network's
-# features have a fixed resolution in the box, so the smeared jump of f is wider relative to a small curve.
-# Circles (preset=cpu, 3000 steps), mass bound / exact area as given against scaled to radius 0.5: radius 0.2
-# 1.139 against 1.085, radius 0.35 1.131 against 1.085 (README). The paper's named curves (half-sizes 0.456-0.9)
-# are above it.
+# features have a fixed resolution in the box, so the smeared jump of f is wider relative to a small curve
+# (docs/notes/code.md). The paper's named curves are above it.
 SMALL_EXTENT = 0.45
 
 

@@ -109,8 +109,8 @@ class DeepCurrentsModule(L.LightningModule):
     def configure_optimizers(self):
         optim = self.hparams.optim
         betas = tuple(float(b) for b in optim.get("betas") or (0.9, 0.999))
-        # fused: one kernel per step instead of a dozen passes (6x faster over a grid encoding's 0.8 M-entry table
-        # on one CPU thread); off by default, since it rounds differently from the loop the authors' recipe ran
+        # fused: one kernel per step instead of a dozen passes (much faster over a grid encoding's table); off by
+        # default, since it rounds differently from the loop the authors' recipe ran
         opt = torch.optim.Adam(self.parameter_groups(float(optim["lr"])), lr=float(optim["lr"]), betas=betas,
                                fused=bool(optim.get("fused", False)) or None)
         if optim.get("schedule", "step") == "cosine":  # the horizon is the budget (models.schedules)
@@ -174,9 +174,8 @@ class DeepCurrentsModule(L.LightningModule):
         """Whether Lightning writes this training step's logged values to the loggers: every
         ``trainer.log_every_n_steps`` steps (counted as Lightning does, step + 1), when the trainer stops, and on the
         last step of a step budget (whose values the final metrics read from ``trainer.callback_metrics``).
-        ``self.log`` on the other steps only refreshes the progress bar; its bookkeeping was 8 % of a one-thread
-        ``preset=cpu`` step under cProfile, though within the noise on the idle machine (benchmarks/README,
-        "Training step"), so the model kinds log only on these steps; the loggers receive the same values."""
+        ``self.log`` on the other steps only refreshes the progress bar at a measurable share of a small step
+        (docs/notes/speed.md), so the model kinds log only on these steps; the loggers receive the same values."""
         trainer = self._trainer
         if trainer is None:  # called outside a fit (a test): log as Lightning would decide
             return True

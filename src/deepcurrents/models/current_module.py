@@ -24,7 +24,7 @@ from deepcurrents.eval.metrics import (
 from deepcurrents.eval.plots import plot_current_2d
 from deepcurrents.losses import current_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
-from deepcurrents.nn import NeuralCurrent
+from deepcurrents.nn import neural_current
 
 
 def boundary_spec(boundary) -> dict[str, Any]:
@@ -101,9 +101,9 @@ class CurrentModule(DeepCurrentsModule):
         if not self.grid_lr_factor > 0:
             raise ConfigError(f"model.grid_encoding.lr_factor={self.grid_lr_factor} must be positive.")
         if "loops" in boundary:
-            self.current = NeuralCurrent(dim=3, loops=[torch.tensor(lp) for lp in boundary["loops"]], **net)
+            self.current = neural_current(dim=3, loops=[torch.tensor(lp) for lp in boundary["loops"]], **net)
         else:
-            self.current = NeuralCurrent(dim=2, poles=torch.tensor(boundary["poles"]),
+            self.current = neural_current(dim=2, poles=torch.tensor(boundary["poles"]),
                                          signs=torch.tensor(boundary["signs"]), **net)
 
     def parameter_groups(self, lr: float) -> list[dict]:

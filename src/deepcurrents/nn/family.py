@@ -64,8 +64,8 @@ class FamilyCurrent(nn.Module):
             first Adam steps move h by about the learning rate; in f's own units, J ≈ 0.013, one step would
             saturate it). A minimal current's f is −alpha_scale·Ω on a branch of the solid angle cut along the
             surface, whose values span exactly one J, so a window of two (the hands' preset) holds it with room
-            while the phase cannot wind again along n (the dome the metric w(I − n nᵀ) leaves free); with 1.2 the
-            outside's f settled at the window's edge and some wrists opened. 0: unbounded (the paper).
+            while the phase cannot wind again along n (the dome the metric w(I − n nᵀ) leaves free); a window
+            barely above one leaves the outside's f at its edge. 0: unbounded (the paper).
     """
 
     def __init__(

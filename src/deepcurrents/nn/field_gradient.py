@@ -84,8 +84,8 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
     backward hands the features and their Jacobian their gradients, which autograd carries on to the grid's table.
 
     ``matmul_precision="medium"``: when a backward follows (training), the pass's matrix products, forward and
-    backward, run with bf16 (CPU, oneDNN) or TF32 (CUDA) internals where the hardware has them: a paper-network step
-    1.6–1.7× faster on a CPU with AMX, parameter gradients within 0.3 % at the start (benchmarks/README). Evaluation
+    backward, run with bf16 (CPU, oneDNN) or TF32 (CUDA) internals where the hardware has them: faster steps, gradients
+    within rounding of fp32 (docs/notes/speed.md). Evaluation
     passes (no backward) stay IEEE fp32 whatever this says.
 
     ``output_basis`` e (…, M), for an MLP with M outputs h: returns h (…, M) and Σ_m e_m ∇h_m (…, d), the
@@ -131,6 +131,50 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
 
 
 MATMUL_PRECISIONS = ("highest", "medium")
+
+
+def network_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor, grid: nn.Module | None,
+                         output_basis: torch.Tensor | None, create_graph: bool, gradient: str = "closed_form",
+                         matmul_precision: str = "highest") -> tuple[torch.Tensor, torch.Tensor]:
+    """f = mlp(features(x)) and ∇_x f by the hand-written pass (``field_and_gradient``) where it supports the
+    network, else (or with ``gradient="autograd"``) by ``field_and_gradient_autograd``. x (N, d) → ((N,), (N, d));
+    with ``output_basis`` e (N, M): (h (N, M), Σ_m e_m ∇h_m)."""
+    extra_dim = grid.out_dim if grid is not None else 0
+    if gradient == "closed_form" and closed_form_supported(mlp, encoding, extra_dim=extra_dim, out_dim=mlp.out_dim):
+        return field_and_gradient(mlp, encoding, x, grid=grid, matmul_precision=matmul_precision,
+                                  output_basis=output_basis)
+    return field_and_gradient_autograd(mlp, encoding, x, grid, output_basis, create_graph)
+
+
+def field_and_gradient_autograd(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor,
+                                grid: nn.Module | None = None, output_basis: torch.Tensor | None = None,
+                                create_graph: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    """The reference for ``field_and_gradient``: autograd through the MLP to its input features, then each
+    encoding's closed-form Jacobian (Fourier: 2πB cos/sin; grid: its multilinear weights' slopes); x itself only
+    when the Fourier features are off. x (N, d) (detached; it may be marked for gradients) → (f (N,), ∇f (N, d)),
+    or with ``output_basis`` e (N, M): (h (N, M), Σ_m e_m ∇h_m)."""
+    with torch.enable_grad():
+        parts, wrt = [], []
+        if encoding.enabled:
+            sin, cos = encoding.sin_cos(x)
+            parts.append(torch.cat([sin, cos], dim=-1).requires_grad_(True))
+        else:
+            parts.append(x.requires_grad_(True))
+        wrt.append(parts[-1])
+        if grid is not None:
+            grid_features, grid_jacobian = grid.features_and_jacobian(x)
+            parts.append(grid_features)
+            wrt.append(grid_features)
+        h = mlp(torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0])
+        f = h.squeeze(-1) if output_basis is None else h
+        weighted = f if output_basis is None else (h * output_basis).sum(-1)
+        grads = torch.autograd.grad(weighted.sum(), wrt, create_graph=create_graph)
+        grad_f = encoding.input_gradient(grads[0], sin, cos) if encoding.enabled else grads[0]
+        if grid is not None:
+            grad_f = grad_f + torch.einsum("nk,nkd->nd", grads[1], grid_jacobian)
+    if not create_graph:
+        f, grad_f = f.detach(), grad_f.detach()
+    return f, grad_f
 
 
 def check_matmul_precision(value: str, key: str = "model.net.matmul_precision") -> str:
@@ -194,7 +238,7 @@ ROW_PADDING = 64
 def _padded_rows(like: torch.Tensor, rows: int, cols: int) -> torch.Tensor:
     """An uninitialised (rows, cols) array whose rows lie ``ROW_PADDING`` elements apart beyond ``cols``: the first
     layer's (2K, N) arrays. With N a power of two (the paper's 4096 samples) rows 16 KiB apart map onto the same
-    cache sets, and MKL's products that read them ran 2 % slower in a paper step (benchmarks/README)."""
+    cache sets, and MKL's products that read them ran slower (docs/notes/speed.md)."""
     return like.new_empty(rows, cols + ROW_PADDING)[:, :cols]
 
 
@@ -238,7 +282,7 @@ class _FieldGradient(torch.autograd.Function):
             scaled = scaled_frequencies(freqs)  # 2π Bᵀ (d, K)
             # the first layer's (N, 2K) arrays live transposed, φᵀ (2K, N), so that sin and cos write, and h and ḡ_0
             # read, contiguous (K, N) blocks (ATen's vectorised sin into the strided half of an (N, 2K) array is
-            # 1.8× slower); the products take φ as a transposed view at the same rate (benchmarks/README)
+            # slower); the products take φ as a transposed view at the same rate (docs/notes/speed.md)
             proj = scaled.T @ x.T  # (K, N)
             a_t = _padded_rows(x, base + width, x.shape[0])
             torch.sin(proj, out=a_t[:k])
@@ -287,8 +331,8 @@ class _FieldGradient(torch.autograd.Function):
             g_t = g.T
             h_t = g_t[:k] * a_t[k:base]
             h_t.addcmul_(g_t[k:base], a_t[:k], value=-1.0)
-            # (2πBᵀ) hᵀ (d, N), both contiguous: MKL's fast layout for a three-row output (1.5 ms a (1024, 4096)
-            # hᵀ, against 9.5 and 28 for the products with hᵀ as a transposed view; benchmarks/README)
+            # (2πBᵀ) hᵀ (d, N), both contiguous: MKL's fast layout for a three-row output (several times faster than
+            # the products with hᵀ as a transposed view; docs/notes/speed.md)
             with matmul_precision_scope(x.device.type, ctx.fast, exact=True):
                 grad = (scaled @ h_t).T.contiguous()  # (N, d) as callers expect; a small copy
             del h_t, g_t

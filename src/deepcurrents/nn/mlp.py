@@ -21,6 +21,7 @@ class FieldMLP(nn.Module):
     def __init__(self, in_dim: int, width: int = 256, depth: int = 4, activation: str = "softplus",
                  out_dim: int = 1):
         super().__init__()
+        self.out_dim = out_dim
         if activation not in ACTIVATIONS:
             raise ConfigError(f"model.net.activation='{activation}' must be one of {', '.join(sorted(ACTIVATIONS))}.")
         layers: list[nn.Module] = []

@@ -36,7 +36,7 @@ log = logging.getLogger(__name__)
 # flat disk of ``data.targets``, f = −alpha_scale·Ω_Γ drops across the sheet along that normal).
 STOKES_WINDING = -1.0
 # Bordered pieces joined to no loop of Γ below this fraction of the mesh's area are dropped once some piece is
-# zipped (module docstring): a loose cap was 1.7 % of a hand's mesh (boundary error 0.07 while it stayed).
+# zipped (module docstring): a loose cap is a small share of a mesh, and its border lies off Γ while it stays.
 MAX_FLOATING = 0.1
 
 

@@ -27,11 +27,8 @@ def phase_from_f(current, x: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
     """The phase φ = f/(2·alpha_scale) + Ω_Γ/2 (``meshing.phase``) at points x (P, 3) from f already evaluated
     there (P,) → (P,) float64.
 
-    Ω is summed in float64. (Summed in float32 for a while — 3.4× faster for 100 vertices, and within 1.5e-3 rad
-    modulo 4π on a trefoil's box — it changed the meshes of the Borromean rings: the 46³ grid current's
-    from 1.4433 to 1.6782 (extra sheets), the CPU network's from 1.3921 to 1.3970; float64 gives the
-    former meshes back. The float32 error there is at most 2.7e-3 rad at 2e5 random points, so that grid mesh
-    is sensitive to millirad changes of the phase: doubtful where the phase lingers near the mesh's level.)"""
+    Ω is summed in float64: float32's millirad errors changed meshes where the phase lingers near the mesh's level
+    (the Borromean rings; docs/notes/meshing.md)."""
     omega = solid_angle(x.double(), [lp.to(device=x.device, dtype=torch.float64) for lp in current.loops])
     return f.double() / (2.0 * current.alpha_scale) + 0.5 * omega
 

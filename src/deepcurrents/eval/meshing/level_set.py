@@ -46,7 +46,7 @@ class BoundaryLevelOffset:
 
     def __call__(self, x: torch.Tensor, chunk_size: int = 1 << 14) -> torch.Tensor:
         """x (N, 3) → offset (N,), differentiable in x; 0 beyond R (only points in Γ's box grown by R are
-        measured)."""
+        evaluated)."""
         out = torch.zeros(len(x), dtype=x.dtype, device=x.device)
         box, gamma, offset = self.box.to(x), self.gamma.to(x), self.offset.to(x)
         near = ((x >= box[0]) & (x <= box[1])).all(-1).nonzero().squeeze(-1)
