@@ -657,3 +657,58 @@ def check_rules(cfg: DictConfig) -> None:
         # the near samples' importance weights are folded into the metric, so E|ω| would not be the mass
         raise ConfigError("model.mass_weight needs uniform ambient samples; data.sampling.kind=near weights "
                           "them into the metric only.")
+
+
+# ------------------------------------------------------------------------------------------- reference
+
+def _range(f: dataclasses.Field) -> str:
+    """The check of a field in words, from its docstring (the first sentence) or its choices."""
+    check = f.metadata.get("check")
+    if check is None:
+        return ""
+    options = getattr(check, "options", None)
+    if options is not None:
+        return " | ".join(options)
+    doc = (check.__doc__ or "").strip().split("\n")[0]
+    closure = getattr(check, "__closure__", None) or ()
+    args = [c.cell_contents for c in closure if isinstance(c.cell_contents, (int, float, bool))]
+    name = getattr(check, "__qualname__", "").split(".")[0]
+    words = {"integer": lambda a: f"integer ≥ {a[0]}", "at_least": lambda a: f"{'>' if a[-1] else '≥'} {a[0]:g}",
+             "between": lambda a: f"[{a[0]:g}, {a[1]:g}]", "nonnegative_between": lambda a: f"[{a[0]:g}, {a[1]:g}]"}
+    if name in words and args:
+        return words[name](args)
+    words_of = doc.split(":", 1)[-1].strip() if ":" in doc else doc
+    return re.sub(r" \([^()]*\)\.?$", "", words_of).rstrip(".")  # the doc's pointer to where the words come from
+
+
+def _rows(cls: type, path: str) -> Iterator[tuple[str, str, str, str, str]]:
+    for f in settings(cls):
+        key = f"{path}.{f.name}" if path else f.name
+        if "group" in f.metadata:
+            yield from _rows(f.metadata["group"], key)
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        text = "null" if default is None else str(default).lower() if isinstance(default, bool) else str(default)
+        yield key, str(f.type).replace(" | ", " or "), text, _range(f), f.metadata["help"]
+
+
+def reference() -> str:
+    """docs/settings.md: every setting of every group (key, type, default, range, meaning), from this schema."""
+    out = ["# Settings", "", "Generated from `src/deepcurrents/experiments/schema.py` by "
+           "`python -m deepcurrents.experiments.schema > docs/settings.md`; do not edit by hand. Defaults are those "
+           "of conf/ before presets and recipes.", ""]
+    groups = [("root", Root, ""), ("trainer", Trainer, "trainer"), ("callbacks", Callbacks, "callbacks"),
+              ("evaluation", Evaluation, "evaluation")]
+    groups += [(f"data: `{t}`", c, "data") for t, c in DATA_KINDS.items() if "minimal." not in t]
+    groups += [(f"model: `{t}`", c, "model") for t, c in MODEL_KINDS.items() if "current." not in t]
+    for title, cls, path in groups:
+        out += [f"## {title}", "", (cls.__doc__ or "").strip(), "", "| key | type | default | range | meaning |",
+                "|---|---|---|---|---|"]
+        out += ["| " + " | ".join(cell.replace("|", "\\|") for cell in (f"`{k}`", t, f"`{d}`", r, h)) + " |"
+                for k, t, d, r, h in _rows(cls, path)]
+        out.append("")
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    print(reference(), end="")
