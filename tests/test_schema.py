@@ -49,8 +49,13 @@ def schema_gaps(cfg) -> list[str]:
     return gaps
 
 
+# the rules between settings that refuse a combination of conf/ files (the run would fail when built)
+REFUSED_COMBINATIONS = ("does not apply to the grid method", "needs a 3D boundary")
+
+
 @pytest.mark.slow
 def test_every_experiment_preset_and_recipe_is_known_to_the_schema_and_valid():
+    """Every key is known and every value valid; a refusal is one of the rules between settings."""
     combos = [[f"preset={p}", *([f"experiment={e}"] if e else []), *([f"recipe={r}"] if r else [])]
               for e, p, r in itertools.product([None, *EXPERIMENTS], ["paper", "cpu"], RECIPES)]
     combos += [["experiment=recon_hand", f"ablation={a}"] for a in ABLATIONS]
@@ -58,7 +63,10 @@ def test_every_experiment_preset_and_recipe_is_known_to_the_schema_and_valid():
         for overrides in combos:
             cfg = compose(config_name="train", overrides=overrides)
             assert schema_gaps(cfg) == [], overrides
-            validate_config(cfg)
+            try:
+                validate_config(cfg)
+            except ConfigError as err:
+                assert any(words in str(err) for words in REFUSED_COMBINATIONS), (overrides, str(err))
 
 
 @pytest.mark.parametrize("overrides", [["model=grid", "preset=cpu"], ["model=closest_point", "data=recon_target"],
@@ -100,10 +108,34 @@ def test_each_model_and_data_kind_is_known_to_the_schema(overrides):
     ("trainer.max_time=3min", "trainer.max_time='3min' must be a number of seconds or DD:HH:MM:SS"),
     ("trainer.max_steps=-1", "trainer.max_steps=-1 (no step limit) needs a time budget"),
     ("trainer.precision=16-mixed", "trainer.precision=16-mixed is not supported"),
+    # settings that constructors also check, in their words
+    ("model.net.activation=tanh", "model.net.activation='tanh' must be one of relu, softplus."),
+    ("model.net.phase_sharpening=-1", "model.net.phase_sharpening=-1 must be a concentration κ ≥ 0 (0: off)."),
+    ("model.net.phase_harmonics_start=1", "model.net.phase_harmonics_start=1 must be a fraction of the training"),
+    ("data.curve_vertices=2", "data.curve_vertices=2 must be an integer ≥ 3."),
+    ("data.normalize=maybe", "data.normalize='maybe' must be true, false or auto."),
+    ("data.sampling.kind=random", "data.sampling.kind='random' must be one of uniform, sobol, importance."),
+    ("data.sampling.uniform_fraction=0", "data.sampling.uniform_fraction=0 must be in (0, 1] (a uniform share"),
 ])
 def test_a_bad_value_is_the_users_one_sentence(override, sentence):
     with pytest.raises(ConfigError) as err:
         validate_config(compose_cfg([override]))
+    assert str(err.value).startswith(sentence), str(err.value)
+
+
+@pytest.mark.parametrize("overrides, sentence", [
+    (["experiment=latent_hands", "model.net.f_turns=0.5"], "model.net.f_turns=0.5 must be 0 (no window) or above 1"),
+    (["experiment=latent_hands", "model.winding_reach=0.5"], "model.winding_reach=0.5 must be a finite number ≥ 1."),
+    (["experiment=latent_hands", "model.interpolation_mix=both"], "model.interpolation_mix='both' must be one of"),
+    (["experiment=latent_hands", "model.latent_fit.steps=0"], "model.latent_fit.steps=0 must be a positive integer."),
+    (["experiment=recon_hand", "model.surface_margin=0"], "model.surface_margin=0 must be positive."),
+    (["experiment=recon_hand", "+data.batch_kind=other"], "data.batch_kind='other' must be 'current' or"),
+    (["model=grid", "model.admm.relaxation=2"], "model.admm.relaxation=2 must be in [1, 2)."),
+    (["model=grid", "model.grid.resolution=2"], "model.grid.resolution=2 must be an integer ≥ 4."),
+])
+def test_a_bad_value_of_a_model_or_data_kind_is_its_constructors_sentence(overrides, sentence):
+    with pytest.raises(ConfigError) as err:
+        validate_config(compose_cfg(overrides))
     assert str(err.value).startswith(sentence), str(err.value)
 
 
@@ -112,6 +144,8 @@ def test_the_rules_between_settings_name_both():
         validate_config(compose_cfg(["model=grid", "trainer.gradient_clip_val=0.1"]))
     with pytest.raises(ConfigError, match="model.mass_weight needs uniform ambient samples"):
         validate_config(compose_cfg(["experiment=recon_hand", "model.mass_weight=0.1", "data.sampling.kind=near"]))
+    with pytest.raises(ConfigError, match="model.net.phase_harmonics=8 needs a 3D boundary"):
+        validate_config(compose_cfg(["experiment=minimal_2d", "recipe=harmonics"]))
     with pytest.raises(ConfigError, match="model.grid.dtype='float16' must be one of"):
         validate_config(compose_cfg(["model=grid", "model.grid.dtype=float16"]))
 

@@ -12,6 +12,7 @@ the top level of ``data``, ``model``, ``trainer`` and ``callbacks`` is left to t
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -20,11 +21,14 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from deepcurrents.data.sampling import SAMPLING_KINDS
 from deepcurrents.errors import ConfigError, number_at_least, number_between, positive_int, share
 from deepcurrents.eval.meshing import CURVE_METHODS, MESH_METHOD_CHOICES
 from deepcurrents.eval.meshing.curve_2d import check_curve_grid
+from deepcurrents.models.autodecoder import INTERPOLATION_MIXES
 from deepcurrents.models.base import GRID_ENCODING_KEYS, OPTIM_KEYS, RFF_KEYS
 from deepcurrents.models.schedules import SCHEDULES
+from deepcurrents.nn.mlp import ACTIVATIONS
 
 Check = Callable[[str, Any], Any]
 
@@ -167,6 +171,85 @@ def grid_dtype(key: str, value: Any) -> None:
     """model.grid.dtype: float32 or float64 (baselines.grid.GridModule's words)."""
     if str(value) not in ("float32", "float64"):
         raise ConfigError(f"{key}={str(value)!r} must be one of {sorted(('float32', 'float64'))}.")
+
+
+def training_fraction(key: str, value: Any) -> None:
+    """A fraction of the training budget in [0, 1) (nn.current.budget_fraction's words)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 1.0:
+        raise ConfigError(f"{key}={value} must be a fraction of the training budget in [0, 1).")
+
+
+def activation(key: str, value: Any) -> None:
+    """model.net.activation: softplus or relu (nn.mlp's words)."""
+    if value not in ACTIVATIONS:
+        raise ConfigError(f"{key}='{value}' must be one of {', '.join(sorted(ACTIVATIONS))}.")
+
+
+def harmonics(key: str, value: Any) -> None:
+    """model.net.phase_harmonics: a whole number ≥ 0 (nn.current's words)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ConfigError(f"{key}={value!r} must be a whole number ≥ 0 (0: the paper's scalar network).")
+
+
+def concentration(key: str, value: Any) -> None:
+    """model.net.phase_sharpening: a concentration κ ≥ 0 (nn.current's words)."""
+    kappa = float(value) if isinstance(value, (int, float)) else float("nan")
+    if isinstance(value, bool) or not 0.0 <= kappa < float("inf"):
+        raise ConfigError(f"{key}={value!r} must be a concentration κ ≥ 0 (0: off).")
+
+
+def turns(key: str, value: Any) -> None:
+    """model.net.f_turns: 0 or above 1 (nn.family's words)."""
+    if 0 < number_at_least(key, value) <= 1:
+        raise ConfigError(f"{key}={value} must be 0 (no window) or above 1: a surface's f spans one full jump, "
+                          "which a window of at most one cannot hold.")
+
+
+def relaxation(key: str, value: Any) -> None:
+    """model.admm.relaxation in [1, 2) (baselines.grid's words)."""
+    if not number_at_least(key, value, 1.0) < 2.0:
+        raise ConfigError(f"{key}={value:g} must be in [1, 2).")
+
+
+def positive_factor(key: str, value: Any) -> None:
+    """model.grid_encoding.lr_factor > 0 (models.current_module's words)."""
+    if not float(value) > 0:
+        raise ConfigError(f"{key}={float(value)} must be positive.")
+
+
+def interpolation_mix(key: str, value: Any) -> None:
+    """model.interpolation_mix: shared or independent (models.autodecoder's words)."""
+    if value not in INTERPOLATION_MIXES:
+        raise ConfigError(f"{key}='{value}' must be one of {', '.join(INTERPOLATION_MIXES)}.")
+
+
+def normalize(key: str, value: Any) -> None:
+    """data.normalize: true, false or auto."""
+    if value not in (True, False, "auto"):
+        raise ConfigError(f"{key}={value!r} must be true, false or auto.")
+
+
+def curve_scale(key: str, value: Any) -> None:
+    """data.curve_scale: a positive number (data.ambient's words)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or not math.isfinite(value):
+        raise ConfigError(f"{key}={value!r} must be a positive number (it multiplies the curve's coordinates).")
+
+
+def dimension(key: str, value: Any) -> None:
+    """data.dim: 2 or 3."""
+    if value not in (2, 3):
+        raise ConfigError(f"{key}={value} must be 2 or 3.")
+
+
+def batch_kind(key: str, value: Any) -> None:
+    """data.batch_kind: current or closest_point (data.recon's words)."""
+    if value not in ("current", "closest_point"):
+        raise ConfigError(f"{key}='{value}' must be 'current' or 'closest_point'.")
+
+
+def importance_share(key: str, value: Any) -> None:
+    """data.sampling.uniform_fraction of a minimal surface in (0, 1] (data.sampling's words)."""
+    share(key, value, "a uniform share bounds the importance weights")
 
 
 def torch_threads(key: str, value: Any) -> None:
@@ -326,7 +409,7 @@ class GridEncoding:
     features: int = setting(2, "features per grid vertex and level")
     table_size: int = setting(262144, "rows a level with more vertices is hashed into")
     init_scale: float = setting(1.0e-4, "initial values uniform in ±init_scale")
-    lr_factor: float = setting(1.0, "the table's learning rate as a multiple of model.optim.lr")
+    lr_factor: float = setting(1.0, "the table's learning rate as a multiple of model.optim.lr", positive_factor)
 
 
 @dataclass
@@ -334,15 +417,17 @@ class Net:
     """``model.net``: the MLP on the features and ω's normalisation (keyword arguments of nn.NeuralCurrent)."""
     width: int = setting(256, "hidden units per layer", integer())
     depth: int = setting(4, "hidden layers", integer())
-    activation: str = setting("softplus", "softplus (paper) or relu (ablation=relu)")
+    activation: str = setting("softplus", "softplus (paper) or relu (ablation=relu)", activation)
     alpha_scale: float = setting(1.0e-3, "the scale a of ω = ∇f + a·α", at_least(strict=True))
     zero_init_output: bool = setting(True, "f starts constant (ω = α)")
     matmul_precision: str = setting("highest", "highest: IEEE float32 products; medium: bf16 or TF32 inside them")
-    phase_harmonics: int = setting(0, "K > 0 (3D): harmonics of the phase in f")
-    phase_harmonics_start: float = setting(0.0, "fraction of the budget before the harmonics open")
-    phase_sharpening: float = setting(0.0, "κ > 0: ω = ψ'(φ)·(∇f + a·α), κ's growth rate")
-    phase_sharpening_start: float = setting(0.0, "fraction of the budget before κ starts to grow")
-    f_turns: float = setting(0.0, "families: f = W·tanh(h), a window of f_turns full jumps (0: off)")
+    phase_harmonics: int = setting(0, "K > 0 (3D): harmonics of the phase in f", harmonics)
+    phase_harmonics_start: float = setting(0.0, "fraction of the budget before the harmonics open",
+                                           training_fraction)
+    phase_sharpening: float = setting(0.0, "κ > 0: ω = ψ'(φ)·(∇f + a·α), κ's growth rate", concentration)
+    phase_sharpening_start: float = setting(0.0, "fraction of the budget before κ starts to grow",
+                                            training_fraction)
+    f_turns: float = setting(0.0, "families: f = W·tanh(h), a window of f_turns full jumps (0: off)", turns)
 
 
 @dataclass
@@ -362,11 +447,11 @@ class Optim:
 @dataclass
 class LatentFit:
     """``model.latent_fit``: held-out shapes fitted by Adam on their latent code alone."""
-    steps: int = setting(300, "Adam steps per held-out shape")
-    lr: float = setting(1.0e-2, "the codes' learning rate")
-    num_samples: int = setting(2000, "ambient samples per step")
-    num_surface_samples: int = setting(2000, "surface samples per step")
-    prior_weight: float = setting(0.0, "weight of the Gaussian prior on the code (0: off)")
+    steps: int = setting(300, "Adam steps per held-out shape", integer())
+    lr: float = setting(1.0e-2, "the codes' learning rate", at_least(strict=True))
+    num_samples: int = setting(2000, "ambient samples per step", integer())
+    num_surface_samples: int = setting(2000, "surface samples per step", integer())
+    prior_weight: float = setting(0.0, "weight of the Gaussian prior on the code (0: off)", at_least())
 
 
 @dataclass
@@ -388,11 +473,11 @@ class Grid:
 @dataclass
 class Admm:
     """``model.admm``: the grid baseline's solver."""
-    rho: float = setting(0.5, "initial penalty ρ = rho·h/alpha_scale")
-    relaxation: float = setting(1.6, "over-relaxation (1: plain ADMM)")
-    balance: float = setting(10.0, "rebalance ρ when one residual is this × the other (0: fixed ρ)")
-    tol: float = setting(1.0e-3, "stop when both relative residuals are below tol")
-    min_iterations: int = setting(10, "iterations before the stopping test")
+    rho: float = setting(0.5, "initial penalty ρ = rho·h/alpha_scale", at_least(strict=True))
+    relaxation: float = setting(1.6, "over-relaxation (1: plain ADMM)", relaxation)
+    balance: float = setting(10.0, "rebalance ρ when one residual is this × the other (0: fixed ρ)", at_least())
+    tol: float = setting(1.0e-3, "stop when both relative residuals are below tol", at_least(strict=True))
+    min_iterations: int = setting(10, "iterations before the stopping test", integer(0))
 
 
 @dataclass
@@ -409,23 +494,34 @@ class Sampling:
     weighted: bool = setting(True, "near: importance weights 1/q")
 
 
+@dataclass
+class MinimalSampling(Sampling):
+    """``data.sampling`` of a minimal surface (data.sampling.AmbientSampler): uniform, sobol or importance."""
+    kind: str = setting("uniform", "uniform (paper), sobol (scrambled quasi-random) or importance (cells near Γ)",
+                        choice(tuple(SAMPLING_KINDS)))
+    uniform_fraction: float = setting(0.5, "importance: the share of each batch drawn uniformly", importance_share)
+    resolution: int = setting(16, "importance: cells along a side of the score grid", integer())
+    power: float = setting(1.0, "importance: the exponent of the cell scores", at_least())
+
+
 # ---------------------------------------------------------------------------------------- data kinds
 
 @dataclass
 class MinimalSurfaceData:
     """``data`` of a minimal surface (data.MinimalSurfaceDataModule): Γ and the samples of U."""
-    dim: int = setting(3, "2 (points of a plane) or 3 (curves in space)")
+    dim: int = setting(3, "2 (points of a plane) or 3 (curves in space)", dimension)
     curve: str | None = setting("trefoil", "3D: a named curve or a curve file")
-    curve_vertices: int = setting(100, "vertices per loop of a named curve")
-    curve_scale: float = setting(1.0, "multiplies the curve's coordinates")
-    normalize: Any = setting("auto", "true, false or auto: centre and scale the curve into [-0.5, 0.5]^3")
-    max_vertices_per_loop: int | None = setting(512, "denser loops are resampled by arc length (null: keep all)")
+    curve_vertices: int = setting(100, "vertices per loop of a named curve", integer(3))
+    curve_scale: float = setting(1.0, "multiplies the curve's coordinates", curve_scale)
+    normalize: Any = setting("auto", "true, false or auto: centre and scale the curve into [-0.5, 0.5]^3", normalize)
+    max_vertices_per_loop: int | None = setting(512, "denser loops are resampled by arc length (null: keep all)",
+                                                integer(3))
     points: list | None = setting(None, "2D: the boundary points [[x, y], ...]")
     signs: list | None = setting(None, "2D: the orientation ±1 of each point")
     num_samples: int = setting(4096, "samples of U per step", integer())
-    num_workers: int = setting(0, "loader workers")
+    num_workers: int = setting(0, "loader workers", integer(0))
     seed: int = setting("${seed}", "seed of the samples")
-    sampling: Sampling = group(Sampling, "how U is sampled")
+    sampling: MinimalSampling = group(MinimalSampling, "how U is sampled")
 
 
 @dataclass
@@ -438,17 +534,17 @@ class FamilyData:
     num_samples: int = setting(4000, "ambient samples per mesh", integer())
     num_surface_samples: int = setting(4000, "surface-loss samples per mesh")
     augment: bool = setting(True, "random rotations, scales and shifts of each mesh")
-    rotation_deg: float = setting(10.0, "each Euler angle ~ U[-r, r], degrees")
+    rotation_deg: float = setting(10.0, "each Euler angle ~ U[-r, r], degrees", at_least())
     scale_range: list = setting([0.85, 1.15], "each loop's two principal scales ~ U[low, high]")
-    shift: float = setting(0.05, "translation ~ U[-s, s]^3, model units")
-    bound: float = setting(0.98, "the augmented mesh stays inside [-bound, bound]^3")
+    shift: float = setting(0.05, "translation ~ U[-s, s]^3, model units", at_least())
+    bound: float = setting(0.98, "the augmented mesh stays inside [-bound, bound]^3", at_least(strict=True))
     mesh_scale_range: list = setting([1.0, 1.0], "the whole mesh × a log-uniform factor in [low, high]")
-    boundary_sigma: float = setting(0.1, "σ of the boundary weighting, model units")
+    boundary_sigma: float = setting(0.1, "σ of the boundary weighting, model units", at_least(strict=True))
     boundary_weighting: bool = setting(True, "the metric's weighting near Γ (ablation=no_boundary_weighting)")
     metric_band: float | None = setting(None, "samples farther than this from Σ get the Euclidean metric")
     surface_epsilon: Any = setting(0.02, "ε of the surface loss's offsets y ± εn, model units")
     sampling: Sampling = group(Sampling, "the ambient samples")
-    num_workers: int = setting(6, "loader workers (augmentation and sampling)")
+    num_workers: int = setting(6, "loader workers (augmentation and sampling)", integer(0))
     seed: int = setting("${seed}", "seed of the samples and augmentations")
 
 
@@ -473,16 +569,20 @@ class ReconstructionData:
     source: str = setting("anny", "anny or faust: the dataset of category")
     index: int = setting(0, "which part of the category")
     root: str = setting("${paths.data_dir}", "the dataset folder")
-    normalize: Any = setting("auto", "true: centre and scale into [-0.5, 0.5]^3; auto: only if it does not fit")
+    normalize: Any = setting("auto", "true: centre and scale into [-0.5, 0.5]^3; auto: only if it does not fit",
+                             normalize)
     num_samples: int = setting(4000, "ambient samples per step", integer())
     num_surface_samples: int = setting(4000, "samples on the target per step")
-    boundary_sigma: float = setting(0.1, "σ of the boundary weighting, model units")
+    boundary_sigma: float = setting(0.1, "σ of the boundary weighting, model units", at_least(strict=True))
     boundary_weighting: bool = setting(True, "the metric's weighting near Γ")
     surface_loss: bool = setting(True, "the surface loss (ablation=no_surface_loss)")
-    curve_tolerance: float = setting(0.05, "Γ within this fraction of the cloud's size of its points")
-    batch_kind: str = setting("current", "current, or closest_point (the closest-point baseline's batches)")
-    near_sigma: float = setting(0.05, "closest_point batches: σ of the points around Σ, model units")
-    num_workers: int = setting(1, "loader workers (closest-point queries)")
+    curve_tolerance: float = setting(0.05, "Γ within this fraction of the cloud's size of its points",
+                                     at_least(strict=True))
+    batch_kind: str = setting("current", "current, or closest_point (the closest-point baseline's batches)",
+                              batch_kind)
+    near_sigma: float = setting(0.05, "closest_point batches: σ of the points around Σ, model units",
+                                at_least(strict=True))
+    num_workers: int = setting(1, "loader workers (closest-point queries)", integer(0))
     seed: int = setting("${seed}", "seed of the samples")
     sampling: Sampling = group(Sampling, "the ambient samples")
 
@@ -519,16 +619,28 @@ class CurrentModel:
 @dataclass
 class ReconstructionModel(CurrentModel):
     """``model`` of a reconstruction (models.reconstruction.ReconstructionModule): current and surface losses."""
+    surface_weight: float = setting(1.0, "weight of the surface loss", at_least())
+    surface_margin: float = setting(0.01, "δ of the surface hinge loss, model units", at_least(strict=True))
+    mass_weight: float = setting(0.0, "> 0: + λ E|ω| at the ambient samples", at_least())
+    level_weight: float = setting(0.0, "> 0: + λ L_level (f's drop straddles the mesher's level)", at_least())
 
 
 @dataclass
 class AutodecoderModel(CurrentModel):
     """``model`` of a family (models.autodecoder.AutodecoderModule): one current per latent code."""
-    latent_std: float = setting(0.1, "σ of the codes' initialisation")
-    winding_weight: float = setting(0.0, "> 0: weight of the cap on f's drop across Σ")
-    winding_reach: float = setting(1.0, "the cap's offsets as a multiple r ≥ 1 of the surface loss's ε")
-    interpolation_weight: float = setting(0.0, "> 0: mass loss of random interpolants of the batch's codes")
-    interpolation_mix: str = setting("shared", "shared: one t for code and boundary; independent: apart")
+    surface_weight: float = setting(1.0, "weight of the surface loss", at_least())
+    mass_weight: float = setting(0.0, "> 0: + λ E|ω| on the training shapes' samples", at_least())
+    level_weight: float = setting(0.0, "> 0: + λ L_level (f's drop straddles the mesher's level)", at_least())
+    latent_lr_factor: float = setting(1.0, "the codes' learning rate as a multiple of optim.lr",
+                                      at_least(strict=True))
+    latent_std: float = setting(0.1, "σ of the codes' initialisation", at_least())
+    winding_weight: float = setting(0.0, "> 0: weight of the cap on f's drop across Σ", at_least())
+    winding_reach: float = setting(1.0, "the cap's offsets as a multiple r ≥ 1 of the surface loss's ε",
+                                   at_least(1.0))
+    interpolation_weight: float = setting(0.0, "> 0: mass loss of random interpolants of the batch's codes",
+                                          at_least())
+    interpolation_mix: str = setting("shared", "shared: one t for code and boundary; independent: apart",
+                                     interpolation_mix)
     interpolation_sampling: InterpolationSampling = group(InterpolationSampling, "the regulariser's points")
 
 
@@ -544,7 +656,7 @@ class ClosestPointModel(CurrentModel):
     """``model`` of the closest-point baseline (baselines.closest_point.ClosestPointModule)."""
     near_fraction: Any = setting(None, "retired (never read): refused if set")
     near_sigma: Any = setting(None, "retired: the near points' noise is data.near_sigma")
-    time_budget_s: float | None = setting(None, "seconds of training")
+    time_budget_s: float | None = setting(None, "seconds of training", at_least(strict=True))
     wall_time_from: str | None = setting(None, "a DeepCurrents run's metrics.json: train for its train_seconds")
 
 
@@ -653,6 +765,13 @@ def check_rules(cfg: DictConfig) -> None:
         raise ConfigError(f"trainer.gradient_clip_val={clip} (set by recipe=sharp, or on the command line) does "
                           "not apply to the grid method (model=grid): its ADMM takes no gradient steps; drop "
                           "recipe=sharp, or set trainer.gradient_clip_val=null.")
+    harmonics_k = OmegaConf.select(cfg, "model.net.phase_harmonics")
+    two_d = OmegaConf.select(cfg, "data.dim") == 2 or str(OmegaConf.select(cfg, "data._target_")).endswith(
+        ".CurveMetricDataModule")
+    if harmonics_k and two_d and str(OmegaConf.select(cfg, "model._target_")).endswith(("CurrentModule",
+                                                                                        "ReconstructionModule")):
+        raise ConfigError(f"model.net.phase_harmonics={harmonics_k} needs a 3D boundary (the harmonics are "
+                          "those of the solid angle); use 0 for 2D curves.")
     if (OmegaConf.select(cfg, "model.mass_weight") or 0) > 0 and OmegaConf.select(cfg, "data.sampling.kind") == "near":
         # the near samples' importance weights are folded into the metric, so E|ω| would not be the mass
         raise ConfigError("model.mass_weight needs uniform ambient samples; data.sampling.kind=near weights "
