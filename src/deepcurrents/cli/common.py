@@ -37,7 +37,7 @@ def register_app(name: str, schema: type, doc: str | None = None) -> None:
     cs = ConfigStore.instance()
     cs.store(group="hydra/job_logging", name="stderr", node=STDERR_LOGGING)
     cs.store(name=f"{name}_schema", node=schema)
-    header = (doc or f"python -m deepcurrents.{name} ckpt_path=… [key=value …]").replace("${", "\\${")
+    header = (doc or f"python -m deepcurrents.cli.{name} ckpt_path=… [key=value …]").replace("${", "\\${")
     cs.store(name=name, node={
         "defaults": [f"{name}_schema", "_self_", {"override hydra/job_logging": "stderr"}],
         "hydra": {"run": {"dir": "."}, "output_subdir": None, "job": {"chdir": False},
