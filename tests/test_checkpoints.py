@@ -164,8 +164,8 @@ def test_crafted_checkpoint_is_refused_in_process(crafted):
 ])
 def test_crafted_checkpoint_is_refused_by_every_app(crafted, tmp_path, app, args):
     path, marker = crafted
-    proc = run_command_in_process(f"deepcurrents.cli.{app}", [f"ckpt_path={path}", f"out_dir={tmp_path / 'out'}", *args],
-                                  cwd=ROOT)
+    proc = run_command_in_process(f"deepcurrents.cli.{app}",
+                                  [f"ckpt_path={path}", f"out_dir={tmp_path / 'out'}", *args], cwd=ROOT)
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "Traceback" not in proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]

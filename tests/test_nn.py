@@ -96,9 +96,13 @@ def test_evaluate_in_chunks_matches_forward():
 
 
 def test_relu_and_bad_activation():
+    from conftest import compose_cfg
+
+    from deepcurrents.experiments.config import validate_config
+
     assert isinstance(FieldMLP(4, 8, 2, "relu").net[1], torch.nn.ReLU)
-    with pytest.raises(ConfigError, match="activation"):
-        FieldMLP(4, 8, 2, "tanhh")
+    with pytest.raises(ConfigError, match="activation"):  # refused before anything is built
+        validate_config(compose_cfg(["experiment=minimal_trefoil", "model.net.activation=tanhh"]))
 
 
 def test_losses_by_hand():
@@ -420,10 +424,15 @@ def test_family_f_window_is_a_tanh_of_the_decoder_and_both_passes_agree(monkeypa
     assert _relative_error(ref[1], omega) <= 1e-12
     for a, b in zip(grads, ref[2], strict=True):
         assert _relative_error(a, b) <= 1e-10
+    from conftest import compose_cfg
+
+    from deepcurrents.experiments.config import validate_config
+
+    # refused before anything is built
     with pytest.raises(ConfigError, match=r"model\.net\.f_turns=0\.9 must be 0 \(no window\) or above 1"):
-        family(0.9)
+        validate_config(compose_cfg(["experiment=latent_hands", "model.net.f_turns=0.9"]))
     with pytest.raises(ConfigError, match=r"model\.net\.f_turns=wide must be a non-negative number"):
-        family("wide")
+        validate_config(compose_cfg(["experiment=latent_hands", "model.net.f_turns=wide"]))
 
 
 def test_coarse_to_fine_features_open_in_order_of_frequency():
@@ -567,10 +576,12 @@ def test_phase_harmonics_reach_the_disk_with_constant_outputs():
 
 
 def test_phase_harmonics_refuses_bad_values_in_one_sentence():
-    with pytest.raises(ConfigError, match="model.net.phase_harmonics"):
-        paper_current(phase_harmonics=-1)
-    with pytest.raises(ConfigError, match="model.net.phase_harmonics"):
-        paper_current(phase_harmonics=2.5)
+    from conftest import compose_cfg
+
+    from deepcurrents.experiments.config import validate_config
+
+    for bad in (-1, 2.5):  # refused before anything is built
+        with pytest.raises(ConfigError, match="model.net.phase_harmonics"):
+            validate_config(compose_cfg(["experiment=minimal_trefoil", f"model.net.phase_harmonics={bad}"]))
     with pytest.raises(ConfigError, match="3D boundary"):
-        neural_current(2, poles=torch.tensor([[0.0, 0.0], [0.5, 0.0]]), signs=torch.tensor([-1.0, 1.0]),
-                      phase_harmonics=4)
+        validate_config(compose_cfg(["experiment=minimal_2d", "model.net.phase_harmonics=4"]))

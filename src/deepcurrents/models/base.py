@@ -14,7 +14,7 @@ import numpy as np
 import torch
 import trimesh
 
-from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least, positive_int, share
+from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least, share
 from deepcurrents.eval.meshing import grid_shape
 from deepcurrents.eval.metrics import mesh_summary, metrics_json
 from deepcurrents.eval.plots import MeshView, plot_mesh
@@ -32,44 +32,23 @@ GRID_ENCODING_KEYS = {"levels", "base_resolution", "finest_resolution", "feature
 
 def network_kwargs(net: dict[str, Any], rff: dict[str, Any] | None = None,
                    grid_encoding: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``model.net`` (the MLP: width, depth, activation, alpha_scale, ...), ``model.rff`` (the random
-    Fourier features: num_frequencies, sigma, enabled, seed; coarse_to_fine and coarse_start, nn.FourierFeatures)
-    and ``model.grid_encoding`` (learned multiresolution grid features, ``nn.MultiresGrid``; levels 0 = off) as
-    the keyword arguments of ``NeuralCurrent`` and ``FamilyCurrent``, checked: impossible sizes stop the run with
-    one sentence naming the key."""
+    """``model.net`` (the MLP: width, depth, activation, alpha_scale, ...), ``model.rff`` (the random Fourier
+    features: num_frequencies, sigma, enabled, seed, coarse_to_fine, coarse_start; ``nn.FourierFeatures``) and
+    ``model.grid_encoding`` (learned multiresolution grid features, ``nn.MultiresGrid``; levels 0 = off) as the
+    keyword arguments of ``nn.neural_current`` and ``FamilyCurrent`` (the values are checked before anything is
+    built, ``experiments.schema``)."""
     rff = dict(rff or {})
-    unknown = set(rff) - RFF_KEYS
-    if unknown:
-        raise ConfigError(f"model.rff has unknown keys {sorted(unknown)}; it takes {', '.join(sorted(RFF_KEYS))}.")
     kwargs = dict(net)
     kwargs.update(num_frequencies=rff.get("num_frequencies", 1024), sigma=rff.get("sigma", 2.0),
                   rff=bool(rff.get("enabled", True)), rff_seed=rff.get("seed"))
-    # the number checks first: a word where a number belongs is one sentence, not a ValueError inside Hydra's call
-    coarse_to_fine = number_at_least("model.rff.coarse_to_fine", rff.get("coarse_to_fine", 0.0))
-    coarse_start = number_at_least("model.rff.coarse_start", rff.get("coarse_start", 0.25), strict=True)
-    if coarse_to_fine > 1.0:
-        raise ConfigError(f"model.rff.coarse_to_fine={coarse_to_fine} must be a fraction of the budget in [0, 1] "
-                          "(0: every frequency from the start).")
-    if coarse_start > 1.0:
-        raise ConfigError(f"model.rff.coarse_start={coarse_start} must be a fraction of the frequencies in (0, 1].")
+    coarse_to_fine = float(rff.get("coarse_to_fine", 0.0))
     if coarse_to_fine > 0:
-        kwargs.update(coarse_to_fine=coarse_to_fine, coarse_start=coarse_start)
-    for group, key in (("rff", "num_frequencies"), ("net", "width"), ("net", "depth")):
-        positive_int(f"model.{group}.{key}", kwargs.get(key, 1))
-    number_at_least("model.rff.sigma", kwargs["sigma"], strict=True)
-    if "alpha_scale" in kwargs:
-        number_at_least("model.net.alpha_scale", kwargs["alpha_scale"], strict=True)
+        kwargs.update(coarse_to_fine=coarse_to_fine, coarse_start=float(rff.get("coarse_start", 0.25)))
     grid = dict(grid_encoding or {})
-    unknown = set(grid) - GRID_ENCODING_KEYS
-    if unknown:
-        raise ConfigError(f"model.grid_encoding has unknown keys {sorted(unknown)}; it takes "
-                          f"{', '.join(sorted(GRID_ENCODING_KEYS))}.")
     grid.pop("lr_factor", None)  # an optimiser setting (CurrentModule.parameter_groups), not the network's
     levels = grid.pop("levels", 0) or 0
-    if isinstance(levels, bool) or not isinstance(levels, int) or levels < 0:
-        raise ConfigError(f"model.grid_encoding.levels={levels!r} must be a non-negative integer (0: no grid).")
     if levels > 0:
-        kwargs["grid"] = {"levels": int(grid_encoding["levels"]), **grid}
+        kwargs["grid"] = {"levels": int(levels), **grid}
     return kwargs
 
 

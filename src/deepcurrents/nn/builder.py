@@ -18,33 +18,15 @@ from deepcurrents.nn.grid_encoding import MultiresGrid
 from deepcurrents.nn.mlp import FieldMLP
 
 
-def budget_fraction(key: str, value: object) -> float:
-    """``model.net.<key>``, a fraction of the training budget in [0, 1), or one sentence (ConfigError)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 1.0:
-        raise ConfigError(f"model.net.{key}={value} must be a fraction of the training budget in [0, 1).")
-    return float(value)
-
-
-def current_extensions(dim: int, phase_harmonics: int = 0, phase_harmonics_start: float = 0.0,
+def current_extensions(phase_harmonics: int = 0, phase_harmonics_start: float = 0.0,
                        phase_sharpening: float = 0.0, phase_sharpening_start: float = 0.0) -> list:
-    """The extensions of ``model.net``'s settings (none: the paper's current), checked in one sentence each."""
-    if isinstance(phase_harmonics, bool) or not isinstance(phase_harmonics, int) or phase_harmonics < 0:
-        raise ConfigError(f"model.net.phase_harmonics={phase_harmonics!r} must be a whole number ≥ 0 "
-                          "(0: the paper's scalar network).")
-    if phase_harmonics and dim != 3:
-        raise ConfigError(f"model.net.phase_harmonics={phase_harmonics} needs a 3D boundary (the harmonics are "
-                          "those of the solid angle); use 0 for 2D curves.")
-    budget_fraction("phase_harmonics_start", phase_harmonics_start)
-    kappa = float(phase_sharpening) if isinstance(phase_sharpening, (int, float)) else float("nan")
-    if isinstance(phase_sharpening, bool) or not 0.0 <= kappa < float("inf"):
-        raise ConfigError(f"model.net.phase_sharpening={phase_sharpening!r} must be a concentration κ ≥ 0 "
-                          "(0: off).")
-    sharpening_start = budget_fraction("phase_sharpening_start", phase_sharpening_start)
+    """The extensions that ``model.net``'s settings choose (none: the paper's current); the settings are checked
+    before anything is built (``experiments.schema``)."""
     extensions = []
     if phase_harmonics:
         extensions.append(PhaseHarmonics(phase_harmonics, phase_harmonics_start))
-    if kappa:
-        extensions.append(PhaseSharpening(kappa, sharpening_start))
+    if phase_sharpening:
+        extensions.append(PhaseSharpening(phase_sharpening, phase_sharpening_start))
     return extensions
 
 
@@ -80,8 +62,7 @@ def neural_current(
     uses PyTorch's default initialisation, False)."""
     if dim not in (2, 3):
         raise ConfigError(f"model.dim={dim} must be 2 or 3.")
-    extensions = current_extensions(dim, phase_harmonics, phase_harmonics_start, phase_sharpening,
-                                    phase_sharpening_start)
+    extensions = current_extensions(phase_harmonics, phase_harmonics_start, phase_sharpening, phase_sharpening_start)
     precision = check_matmul_precision(matmul_precision)
     if dim == 3 and not loops:
         raise ConfigError("A 3D current needs at least one boundary loop.")

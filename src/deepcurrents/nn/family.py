@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from deepcurrents.errors import ConfigError, number_at_least, positive_int
+from deepcurrents.errors import positive_int
 from deepcurrents.geometry import biot_savart
 from deepcurrents.nn.current import NeuralCurrent, spatial_gradient
 from deepcurrents.nn.encoder import BoundaryEncoder
@@ -94,11 +94,7 @@ class FamilyCurrent(nn.Module):
                            ("boundary_dim", boundary_dim)):
             positive_int(f"model.{key}", value)
         self.num_loops = int(num_loops)
-        self.alpha_scale = number_at_least("model.net.alpha_scale", alpha_scale, strict=True)
-        self.f_turns = number_at_least("model.net.f_turns", f_turns)
-        if 0 < self.f_turns <= 1:
-            raise ConfigError(f"model.net.f_turns={f_turns} must be 0 (no window) or above 1: a surface's f spans one "
-                              "full jump, which a window of at most one cannot hold.")
+        self.alpha_scale, self.f_turns = float(alpha_scale), float(f_turns)  # checked by experiments.schema
         self.matmul_precision = check_matmul_precision(matmul_precision)
         self.latents = nn.Embedding(int(num_shapes), int(latent_dim))
         nn.init.normal_(self.latents.weight, mean=0.0, std=float(latent_std))

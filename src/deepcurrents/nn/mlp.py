@@ -6,8 +6,6 @@ import itertools
 
 from torch import nn
 
-from deepcurrents.errors import ConfigError
-
 ACTIVATIONS = {"softplus": nn.Softplus, "relu": nn.ReLU}
 
 
@@ -22,8 +20,6 @@ class FieldMLP(nn.Module):
                  out_dim: int = 1):
         super().__init__()
         self.out_dim = out_dim
-        if activation not in ACTIVATIONS:
-            raise ConfigError(f"model.net.activation='{activation}' must be one of {', '.join(sorted(ACTIVATIONS))}.")
         layers: list[nn.Module] = []
         dims = [in_dim] + [width] * depth
         for a, b in itertools.pairwise(dims):
