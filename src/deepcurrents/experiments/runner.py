@@ -223,7 +223,9 @@ def torch_threads(threads: int | None):
 
 
 def build(cfg: DictConfig):
-    """The DataModule and the LightningModule of a run (validates the inputs; trains nothing)."""
+    """The DataModule and the LightningModule of a run, its settings checked first (``experiments.schema``: one
+    sentence for an impossible one; the constructors trust them) and its inputs read; trains nothing."""
+    validate_config(cfg)
     datamodule = instantiate(cfg.data, _convert_="all")
     spec = boundary_spec(datamodule.boundary) if hasattr(datamodule, "boundary") else None
     kwargs = {"boundary": spec} if spec is not None else {}

@@ -25,8 +25,8 @@ from deepcurrents.data.sampling import SAMPLING_KINDS
 from deepcurrents.errors import ConfigError, number_at_least, number_between, positive_int, share
 from deepcurrents.eval.meshing import CURVE_METHODS, MESH_METHOD_CHOICES
 from deepcurrents.eval.meshing.curve_2d import check_curve_grid
-from deepcurrents.models.autodecoder import INTERPOLATION_MIXES
 from deepcurrents.models.base import GRID_ENCODING_KEYS, OPTIM_KEYS, RFF_KEYS
+from deepcurrents.models.family_interpolation import INTERPOLATION_MIXES
 from deepcurrents.models.schedules import SCHEDULES
 from deepcurrents.nn.mlp import ACTIVATIONS
 

@@ -23,7 +23,7 @@ import torch
 
 from deepcurrents.data.recon import ambient_options
 from deepcurrents.data.targets import SURFACE_EPSILON
-from deepcurrents.errors import ConfigError, UserInputError, number_at_least
+from deepcurrents.errors import ConfigError, UserInputError
 from deepcurrents.eval.families import (
     EvaluatedMember,
     family_metrics,
@@ -36,8 +36,8 @@ from deepcurrents.eval.meshing import extract_surface, mesh_method
 from deepcurrents.eval.metrics import jump
 from deepcurrents.losses import current_loss, level_loss, surface_loss, surface_values, winding_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
-from deepcurrents.models.family_interpolation import INTERPOLATION_MIXES, InterpolationRegulariser
-from deepcurrents.models.latent_fit import check_latent_fit, fit_latent, latent_fit_settings
+from deepcurrents.models.family_interpolation import InterpolationRegulariser
+from deepcurrents.models.latent_fit import fit_latent, latent_fit_settings
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent
 
 log = logging.getLogger(__name__)
@@ -153,16 +153,6 @@ class AutodecoderModule(DeepCurrentsModule):
         shape_names = list(shape_names)
         if len(shape_names) != num_shapes or len(loop_lengths) != num_shapes:
             raise ConfigError(f"model.num_shapes={num_shapes} does not match the {len(shape_names)} shape names.")
-        for key, value in (("surface_weight", surface_weight), ("interpolation_weight", interpolation_weight),
-                           ("mass_weight", mass_weight), ("winding_weight", winding_weight),
-                           ("level_weight", level_weight), ("latent_std", latent_std)):  # latent_std 0: codes at 0
-            number_at_least(f"model.{key}", value)
-        number_at_least("model.latent_lr_factor", latent_lr_factor, strict=True)
-        number_at_least("model.winding_reach", winding_reach, 1.0)  # a multiple of the surface loss's ε
-        check_latent_fit(**latent_fit_settings(latent_fit))  # refused before training, not at its end
-        if interpolation_mix not in INTERPOLATION_MIXES:
-            raise ConfigError(f"model.interpolation_mix='{interpolation_mix}' must be one of "
-                              f"{', '.join(INTERPOLATION_MIXES)}.")
         self.interpolation = InterpolationRegulariser(
             interpolation_mix, ambient_options(interpolation_sampling, "model.interpolation_sampling", anchors=False))
         self.save_hyperparameters(ignore=["train_loops", "train_bounds"])

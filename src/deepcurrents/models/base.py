@@ -14,13 +14,13 @@ import numpy as np
 import torch
 import trimesh
 
-from deepcurrents.errors import ConfigError, NonFiniteLossError, number_at_least, share
+from deepcurrents.errors import NonFiniteLossError
 from deepcurrents.eval.meshing import grid_shape
 from deepcurrents.eval.metrics import mesh_summary, metrics_json
 from deepcurrents.eval.plots import MeshView, plot_mesh
 from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.models.checkpointing import kept_checkpoint
-from deepcurrents.models.schedules import BudgetCosine, check_schedule, trainer_progress
+from deepcurrents.models.schedules import BudgetCosine, trainer_progress
 
 CHECKPOINT_KEY = "deepcurrents"
 
@@ -70,17 +70,7 @@ class DeepCurrentsModule(L.LightningModule):
     mesh_method = "phase"  # what evaluation.mesh.method=auto means for this model kind (eval.meshing.mesh_method)
 
     def __init__(self, optim: dict[str, Any] | None):
-        super().__init__()
-        if optim is not None:
-            unknown = sorted(set(optim) - set(OPTIM_KEYS))
-            if unknown:  # read by name: a misspelt key (+model.optim.lrr=1e-3) would be ignored without a word
-                raise ConfigError(f"model.optim.{unknown[0]} is not a setting of model.optim (its settings: "
-                                  f"{', '.join(OPTIM_KEYS)}).")
-            # a word where a number belongs is the same one sentence (not a ValueError inside Hydra's call)
-            number_at_least("model.optim.lr", optim["lr"], strict=True)
-            number_at_least("model.optim.step_size", optim["step_size"], 1.0)  # steps (1e4 from the command line)
-            share("model.optim.gamma", optim["gamma"])
-            check_schedule(optim)
+        super().__init__()  # ``optim``'s settings are checked before anything is built (experiments.schema)
         self.run_config: dict | None = None  # set by the entry point; saved in checkpoints
         self.train_seconds = 0.0  # training time of the fit loops that ended (this run and those it resumed)
         self._train_start: float | None = None

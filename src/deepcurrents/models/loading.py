@@ -166,6 +166,9 @@ def load_module(ckpt_path: str | Path, map_location: str | torch.device | None =
         raise CheckpointError(
             f"ckpt_path='{ckpt_path}': its {cls.__name__} hyperparameters do not fit this version ({err})."
         ) from None
+    except Exception as err:  # the constructors trust their settings (checked before a run trains): a crafted file's
+        raise CheckpointError(f"ckpt_path='{ckpt_path}': its {cls.__name__} hyperparameters cannot build the model "
+                              f"({type(err).__name__}: {err}).") from None
     try:
         module.load_state_dict(ckpt["state_dict"], strict=True)
     except RuntimeError:

@@ -61,25 +61,6 @@ class BudgetCosine(torch.optim.lr_scheduler.LambdaLR):
         return {k: v for k, v in super().state_dict().items() if k != "progress_fn"}
 
 
-def check_schedule(optim: dict) -> None:
-    """One sentence naming the model.optim key that is wrong (schedule, warmup, min_factor, betas, fused)."""
-    schedule = optim.get("schedule", "step")
-    if schedule not in SCHEDULES:
-        raise ConfigError(f"model.optim.schedule={schedule!r} must be one of {', '.join(SCHEDULES)}.")
-    warmup = float(optim.get("warmup", 0.0))
-    if not 0.0 <= warmup < 1.0:
-        raise ConfigError(f"model.optim.warmup={warmup} must be a fraction of the budget in [0, 1).")
-    min_factor = float(optim.get("min_factor", 0.0))
-    if not 0.0 <= min_factor <= 1.0:
-        raise ConfigError(f"model.optim.min_factor={min_factor} must be in [0, 1].")
-    betas = optim.get("betas")
-    if betas is not None and (len(betas) != 2 or not all(0.0 <= float(b) < 1.0 for b in betas)):
-        raise ConfigError(f"model.optim.betas={list(betas)} must be two numbers in [0, 1).")
-    fused = optim.get("fused", False)
-    if not isinstance(fused, bool):
-        raise ConfigError(f"model.optim.fused={fused!r} must be true or false.")
-
-
 def trainer_progress(trainer, step: int, elapsed: float | None = None) -> float:
     """``budget_progress`` of a Lightning trainer: its max_steps and the duration of its Timer callback
     (which ``trainer.max_time`` installs). ``elapsed`` defaults to the Timer's training time."""
