@@ -71,7 +71,7 @@ def field_and_gradient(mlp: FieldMLP, encoding: FourierFeatures, x: torch.Tensor
                        output_basis: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """f = mlp(encoding(x)) and ∇_x f, differentiable in the MLP's parameters (not in x).
 
-    x: (N, d) → (f (N,), ∇f (N, d)). The same numbers as autograd (tests/test_nn.py: float64, relative
+    x: (N, d) → (f (N,), ∇f (N, d)). The same numbers as autograd (tests/nn/test_nn.py: float64, relative
     error ≤ 1e-10 on f, ∇f and every parameter gradient); f is ``mlp(encoding(x))`` up to rounding (the same
     operations, but the features are kept transposed, so the products may sum in another order).
 

@@ -92,7 +92,7 @@ def grid_phase(current, points: torch.Tensor, shape: tuple[int, int, int], loops
     cross need exact values (``level_cells``), and those near Γ. A coarse cell elsewhere is interpolated
     (trilinearly in e^{iφ}): its corners' phases span less than π without reaching the level, so its
     interpolated values do not reach it either, and marching cubes finds no part of the mesh there, as on
-    the dense grid (the same faces from the same values; tests/test_time_to_quality.py). Within the smeared
+    the dense grid (the same faces from the same values; tests/benchmarks/test_time_to_quality.py). Within the smeared
     jump of a partly trained current this skips the cells at the other levels, which the former test
     (corners' e^{iφ} differing by more than 0.25 rad) computed: 150k exact nodes instead of 319k of 1.05M
     for the trained ``make run`` trefoil. θ is the circular mean of φ over every node, as before; the cells

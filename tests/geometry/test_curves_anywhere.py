@@ -33,7 +33,7 @@ from deepcurrents.geometry.polyline import closed_loop_segments, polyline_hausdo
 from deepcurrents.losses import current_loss
 from deepcurrents.nn import neural_current
 
-# the disk test's small network (tests/test_minimal_training.py), quiet
+# the disk test's small network (tests/models/test_minimal_training.py), quiet
 SMALL = QUIET_CPU + [
     "callbacks.model_checkpoint.every_n_train_steps=100000", "data.num_samples=1024",
     "model.rff.num_frequencies=128", "model.net.width=64", "model.net.depth=3", "model.optim.lr=2e-3",

@@ -1,7 +1,7 @@
 """The sharpened area bound (eval.certificate) against independent truth: κ = 0 is the plain uniform mass
 bound; on a planar circle the phase mesh of α alone is the flat disk (a level set of the solid angle), so the
 bound concentrated on it must come down from the plain bound (2.3× the disk) to the disk's exact area πR²,
-never below it (the von Mises map itself: tests/test_phase_map.py)."""
+never below it (the von Mises map itself: tests/geometry/test_phase_map.py)."""
 
 import math
 

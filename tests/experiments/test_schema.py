@@ -15,7 +15,7 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.experiments import schema
 from deepcurrents.experiments.config import validate_config
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXPERIMENTS = sorted(p.stem for p in (Path(CONF_DIR) / "experiment").glob("*.yaml"))
 RECIPES = [None, *sorted(p.stem for p in (Path(CONF_DIR) / "recipe").glob("*.yaml"))]
 ABLATIONS = sorted(p.stem for p in (Path(CONF_DIR) / "ablation").glob("*.yaml"))

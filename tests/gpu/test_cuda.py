@@ -2,7 +2,7 @@
 short training through train.py's code on `trainer=gpu` whose checkpoint then loads on a CPU.
 
 These need a CUDA device; CI has none, so there they are skipped (the only tests that are). Run them on a GPU
-machine with `pytest tests/test_cuda.py`. Last run on an NVIDIA H200 (torch 2.11 + CUDA 13.0), 2026-12-04."""
+machine with `pytest tests/gpu/test_cuda.py`. Last run on an NVIDIA H200 (torch 2.11 + CUDA 13.0), 2026-12-04."""
 
 from __future__ import annotations
 
