@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from deepcurrents.errors import ConfigError, number_at_least
+from deepcurrents.errors import ConfigError
 from deepcurrents.eval.metrics import sample_surface
 from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
@@ -66,8 +66,6 @@ class ClosestPointModule(DeepCurrentsModule):
         self.save_hyperparameters(ignore=["target", "near_fraction", "near_sigma"])
         self._retired = {k: v for k, v in (("near_fraction", near_fraction), ("near_sigma", near_sigma))
                          if v is not None}
-        if time_budget_s is not None:
-            number_at_least("model.time_budget_s", time_budget_s, strict=True)
         net = network_kwargs(net, rff)
         self.encoding = FourierFeatures(3, net["num_frequencies"], float(net["sigma"]), enabled=net["rff"],
                                         seed=net["rff_seed"])

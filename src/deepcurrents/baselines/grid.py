@@ -22,7 +22,7 @@ from deepcurrents.baselines.grid_solver import (
     grid_spacing,
     grid_vertices,
 )
-from deepcurrents.errors import ConfigError, number_at_least, positive_int
+from deepcurrents.errors import ConfigError
 from deepcurrents.eval.device import require_memory
 from deepcurrents.eval.meshing import extract_surface, mesh_method, mesh_region
 from deepcurrents.eval.metrics import mass_estimate, mass_to_area
@@ -41,8 +41,6 @@ def matched_resolution(net: dict[str, Any], rff: dict[str, Any] | None, loops: l
     return max(4, round(count ** (1.0 / 3.0))), count
 
 
-GRID_KEYS = ("resolution", "dtype")
-ADMM_KEYS = ("rho", "relaxation", "balance", "tol", "min_iterations")
 # Bytes a grid corner takes while training (α at the corners, φ, ADMM's split variable, its multiplier and the
 # iteration's temporaries, then the final evaluation's field): the peak RSS of `minimal_grid` runs at N = 60 and
 # 120 in float64 grew by 340 bytes a corner; a little less here, so that only grids that cannot fit are refused.
@@ -82,31 +80,19 @@ class GridModule(DeepCurrentsModule):
         self.evaluation = dict(evaluation or {})
         if "loops" not in boundary:
             raise ConfigError("model=grid needs a 3D boundary (closed loops); 2D point boundaries are not supported.")
-        for node, given, known in (("grid", grid, GRID_KEYS), ("admm", admm, ADMM_KEYS)):
-            unknown = sorted(set(given) - set(known))
-            if unknown:  # read by name: a misspelt key (+model.grid.resolutoin=50) would be ignored without a word
-                raise ConfigError(f"model.{node}.{unknown[0]} is not a setting of model.{node} (its settings: "
-                                  f"{', '.join(known)}).")
+        # the settings of model.grid, model.admm and model.net are checked before anything is built
+        # (experiments.schema); the grid's size against the memory here, once it is known
         loops = [torch.tensor(lp, dtype=torch.float64) for lp in boundary["loops"]]
-        alpha_scale = number_at_least("model.net.alpha_scale", net.get("alpha_scale", 1e-3), strict=True)
+        alpha_scale = float(net.get("alpha_scale", 1e-3))
         dtype = str(grid.get("dtype", "float64"))
-        if dtype not in DTYPES:
-            raise ConfigError(f"model.grid.dtype={dtype!r} must be one of {sorted(DTYPES)}.")
         resolution = grid.get("resolution")
         self.matched_parameters = None
         if resolution is None:
             resolution, self.matched_parameters = matched_resolution(net, rff, loops)
-        positive_int("model.grid.resolution", resolution, 4)
         check_grid_memory(resolution, DTYPES[dtype])
-        relaxation = number_at_least("model.admm.relaxation", admm.get("relaxation", 1.6), 1.0)
-        if not relaxation < 2.0:
-            raise ConfigError(f"model.admm.relaxation={relaxation:g} must be in [1, 2).")
-        self.admm_settings = {"rho": number_at_least("model.admm.rho", admm.get("rho", 0.5), strict=True),
-                              "relaxation": relaxation,
-                              "balance": number_at_least("model.admm.balance", admm.get("balance", 10.0)),
-                              "tol": number_at_least("model.admm.tol", admm.get("tol", 1e-3), strict=True),
-                              "min_iterations": positive_int("model.admm.min_iterations",
-                                                             admm.get("min_iterations", 10), 0)}
+        self.admm_settings = {"rho": float(admm.get("rho", 0.5)), "relaxation": float(admm.get("relaxation", 1.6)),
+                              "balance": float(admm.get("balance", 10.0)), "tol": float(admm.get("tol", 1e-3)),
+                              "min_iterations": int(admm.get("min_iterations", 10))}
         self.current = GridCurrent(resolution, loops, alpha_scale, DTYPES[dtype])
         self._problem: GridProblem | None = None
         self.setup_seconds = 0.0

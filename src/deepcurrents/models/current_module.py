@@ -11,7 +11,6 @@ import torch
 import trimesh
 
 from deepcurrents.data.sampling import mesh_sampler
-from deepcurrents.errors import ConfigError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method, mesh_region
 from deepcurrents.eval.metrics import (
@@ -98,8 +97,6 @@ class CurrentModule(DeepCurrentsModule):
         self.evaluation = dict(evaluation or {})
         net = network_kwargs(net, rff, grid_encoding)
         self.grid_lr_factor = float((grid_encoding or {}).get("lr_factor", 1.0))
-        if not self.grid_lr_factor > 0:
-            raise ConfigError(f"model.grid_encoding.lr_factor={self.grid_lr_factor} must be positive.")
         if "loops" in boundary:
             self.current = neural_current(dim=3, loops=[torch.tensor(lp) for lp in boundary["loops"]], **net)
         else:

@@ -12,7 +12,6 @@ import torch
 import trimesh
 from scipy.spatial import cKDTree
 
-from deepcurrents.errors import number_at_least
 from deepcurrents.eval.meshing import flux_sign, region_of_interest
 from deepcurrents.eval.metrics import point_mesh_distance, sample_surface, unidirectional_chamfer
 from deepcurrents.eval.plots import MeshView, mesh_view, plot_mesh
@@ -138,10 +137,8 @@ class ReconstructionModule(CurrentModule):
                  level_weight: float = 0.0):
         super().__init__(boundary, net, optim, rff, evaluation, grid_encoding)
         self.save_hyperparameters(ignore=["target"])  # the geometry lives in buffers, not in hparams
-        self.surface_weight = number_at_least("model.surface_weight", surface_weight)
-        self.surface_margin = number_at_least("model.surface_margin", surface_margin, strict=True)
-        self.mass_weight = number_at_least("model.mass_weight", mass_weight)
-        self.level_weight = number_at_least("model.level_weight", level_weight)
+        self.surface_weight, self.surface_margin = float(surface_weight), float(surface_margin)  # experiments.schema
+        self.mass_weight, self.level_weight = float(mass_weight), float(level_weight)
         self._gamma_points: torch.Tensor | None = None
         TargetGeometry.register(self, target)
 
