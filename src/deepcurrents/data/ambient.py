@@ -15,7 +15,7 @@ from lightning.fabric.utilities.seed import pl_worker_init_function
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from deepcurrents.data.sampling import AmbientSampler, cell_scores, pool_batch, sample_pool, sampling_options
-from deepcurrents.errors import ConfigError, positive_int
+from deepcurrents.errors import ConfigError
 from deepcurrents.geometry import Boundary, PointBoundary, biot_savart, biot_savart_2d, load_boundary, validate_points
 
 
@@ -140,18 +140,7 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
         sampling: dict | None = None,
     ):
         super().__init__()
-        self.sampling = sampling_options(sampling)
-        positive_int("data.num_samples", num_samples)
-        positive_int("data.curve_vertices", curve_vertices, minimum=3)
-        positive_int("data.num_workers", num_workers, minimum=0)
-        if isinstance(curve_scale, bool) or not isinstance(curve_scale, (int, float)) or not curve_scale > 0 \
-                or not np.isfinite(curve_scale):
-            raise ConfigError(f"data.curve_scale={curve_scale!r} must be a positive number (it multiplies the "
-                              "curve's coordinates).")
-        if normalize not in (True, False, "auto"):
-            raise ConfigError(f"data.normalize={normalize!r} must be true, false or auto.")
-        if max_vertices_per_loop is not None:  # null keeps every vertex
-            positive_int("data.max_vertices_per_loop", max_vertices_per_loop, minimum=3)
+        self.sampling = sampling_options(sampling)  # the settings are checked before anything is built (schema)
         self.dim, self.num_samples, self.num_workers, self.seed = dim, num_samples, num_workers, seed
         self.boundary: Boundary | PointBoundary
         if dim == 3:
@@ -160,12 +149,10 @@ class MinimalSurfaceDataModule(L.LightningDataModule):
                                   "enneper) or a curve file, e.g. data.curve=path/to/rim.obj.")
             self.boundary = load_boundary(curve, n=curve_vertices, scale=curve_scale, normalize=normalize,
                                           max_vertices=max_vertices_per_loop)
-        elif dim == 2:
+        else:
             if points is None or signs is None:
                 raise ConfigError("data.points and data.signs are required for a 2D run (data.dim=2).")
             self.boundary = validate_points(points, signs)
-        else:
-            raise ConfigError(f"data.dim={dim} must be 2 or 3.")
         AmbientSampler(dim, **{k: v for k, v in self.sampling.items() if k != "pool"})  # checks the options
         if self.sampling.get("kind") == "importance":
             self.sampling["scores"] = cell_scores(self.alpha_field(), dim, int(self.sampling.get("resolution", 16)),

@@ -269,16 +269,10 @@ class ReconstructionDataModule(L.LightningDataModule):
         super().__init__()
         for key, value in (("num_samples", num_samples), ("num_surface_samples", num_surface_samples)):
             positive_int(f"data.{key}", value)
-        number_at_least("data.boundary_sigma", boundary_sigma, strict=True)
-        curve_tolerance = number_at_least("data.curve_tolerance", curve_tolerance, strict=True)
-        positive_int("data.num_workers", num_workers, minimum=0)
-        if batch_kind not in ("current", "closest_point"):
-            raise ConfigError(f"data.batch_kind='{batch_kind}' must be 'current' or 'closest_point'.")
-        self.batch_kind = batch_kind
-        self.near_sigma = number_at_least("data.near_sigma", near_sigma, strict=True)
+        # boundary_sigma, curve_tolerance, num_workers, batch_kind, near_sigma, normalize: experiments.schema
+        curve_tolerance = float(curve_tolerance)
+        self.batch_kind, self.near_sigma = batch_kind, float(near_sigma)
         self.ambient = ambient_options(sampling)
-        if normalize not in (True, False, "auto"):
-            raise ConfigError(f"data.normalize={normalize!r} must be true, false or auto.")
         self.num_samples, self.num_surface_samples = num_samples, num_surface_samples
         self.sampling = {"boundary_sigma": float(boundary_sigma),
                          "boundary_weighting": bool(boundary_weighting), "surface_loss": bool(surface_loss)}
