@@ -577,10 +577,9 @@ def _dome_and_rim(folder: Path, rim_radius: float) -> tuple[str, str]:
 def test_curve_tolerance_must_be_positive_before_any_file_is_read(tmp_path):
     """data.curve_tolerance=-1 (or 0) made every curve "not near the points (allowed -1 …)"; it is a ConfigError
     naming the setting, raised before the cloud (here a missing file) is read. The dome's own rim still passes."""
-    from deepcurrents.errors import ConfigError
-
     from conftest import compose_cfg
 
+    from deepcurrents.errors import ConfigError
     from deepcurrents.experiments.config import validate_config
 
     points = [f"data.points={tmp_path / 'missing.xyz'}", f"data.curve={tmp_path / 'missing.txt'}"]
