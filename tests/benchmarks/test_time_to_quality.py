@@ -181,10 +181,11 @@ def test_importance_estimator_of_the_untrained_mass_has_lower_variance():
 
 
 def test_bad_sampling_options_are_one_sentence():
+    # refused by the validator before anything is built (runner.build checks first)
     with pytest.raises(ConfigError, match=r"data\.sampling\.kind="):
-        AmbientSampler(3, kind="stratified")
+        compose_and_build(["data.sampling.kind=stratified"])
     with pytest.raises(ConfigError, match=r"data\.sampling\.uniform_fraction="):
-        AmbientSampler(3, kind="importance", uniform_fraction=0.0)
+        compose_and_build(["data.sampling.kind=importance", "data.sampling.uniform_fraction=0.0"])
     with pytest.raises(ConfigError, match=r"model\.optim\.schedule="):
         compose_and_build(["model.optim.schedule=linear"])
 
@@ -218,7 +219,7 @@ def test_sample_pool_carries_alpha_and_gives_the_same_current(kind):
         # weights of a pooled batch: 1/(vol·q) at the drawn points (the pool's realised uniform share is 1/2)
         torch.testing.assert_close(batch["weight"], 1.0 / sampler.density(batch["x"], 0.5))
     with pytest.raises(ConfigError, match=r"data\.sampling\.pool="):
-        MinimalSurfaceDataModule(curve="trefoil", sampling={"kind": kind, "pool": -1})
+        compose_and_build([f"data.sampling.kind={kind}", "data.sampling.pool=-1"])
 
 
 def test_mass_estimate_stops_at_the_requested_precision():

@@ -309,11 +309,9 @@ class FamilyDataModule(L.LightningDataModule):
         for key, value in (("meshes_per_batch", meshes_per_batch), ("num_samples", num_samples),
                            ("num_surface_samples", num_surface_samples)):
             positive_int(f"data.{key}", value)
-        positive_int("data.num_workers", num_workers, minimum=0)
         for key, value in (("scale_range", scale_range), ("mesh_scale_range", mesh_scale_range)):
             if len(value) != 2:
                 raise ConfigError(f"data.{key}={list(value)} must be [low, high].")
-        number_at_least("data.boundary_sigma", boundary_sigma, strict=True)
         if metric_band is not None and (isinstance(metric_band, bool) or not isinstance(metric_band, (int, float))
                                         or not metric_band > 0):
             raise ConfigError(f"data.metric_band={metric_band!r} must be a positive distance (null: the paper's "
@@ -321,9 +319,9 @@ class FamilyDataModule(L.LightningDataModule):
         # numbers first (a word would be a raw ValueError from float()); the ranges are checked by AugmentationRanges
         scales = {key: tuple(number_at_least(f"data.{key}", v, strict=True) for v in value)
                   for key, value in (("scale_range", scale_range), ("mesh_scale_range", mesh_scale_range))}
-        self.ranges = AugmentationRanges(number_at_least("data.rotation_deg", rotation_deg), scales["scale_range"],
-                                         number_at_least("data.shift", shift),
-                                         number_at_least("data.bound", bound, strict=True), scales["mesh_scale_range"])
+        # rotation_deg, shift, bound, num_workers, boundary_sigma: experiments.schema
+        self.ranges = AugmentationRanges(float(rotation_deg), scales["scale_range"], float(shift), float(bound),
+                                         scales["mesh_scale_range"])
         train, kept_out = split_held_out(family_files(path), max_meshes, held_out)
         # loaded together: held-out loops are matched to the same reference (the first training mesh)
         loaded = load_family(train + kept_out, bound=self.ranges.bound)

@@ -459,8 +459,6 @@ class CurveMetricDataModule(L.LightningDataModule):
             if np.linalg.norm(pts[0] - pts[-1]) < 1e-9:
                 raise ConfigError("data.curve is closed (its first and last points coincide): a closed curve has no "
                                   "boundary to reconstruct from; give an open polyline.")
-        if num_samples <= 0:
-            raise ConfigError(f"data.num_samples={num_samples} must be a positive integer.")
         self.curve, self.num_samples, self.num_workers, self.seed = pts, num_samples, num_workers, seed
         self.boundary = validate_points(pts[[0, -1]], [-1.0, 1.0], source="of data.curve (its end points)")
 

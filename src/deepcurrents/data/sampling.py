@@ -65,12 +65,6 @@ class AmbientSampler:
 
     def __init__(self, dim: int, kind: str = "uniform", seed: int = 0, resolution: int = 16,
                  uniform_fraction: float = 0.5, power: float = 1.0, scores: torch.Tensor | None = None):
-        if kind not in SAMPLING_KINDS:
-            raise ConfigError(f"data.sampling.kind={kind!r} must be one of {', '.join(SAMPLING_KINDS)}.")
-        if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 1:
-            raise ConfigError(f"data.sampling.resolution={resolution!r} must be a positive integer.")
-        share("data.sampling.uniform_fraction", uniform_fraction, "a uniform share bounds the importance weights")
-        number_at_least("data.sampling.power", power)
         self.dim, self.kind, self.resolution = dim, kind, resolution
         self.uniform_fraction, self.power = float(uniform_fraction), float(power)
         self.generator = torch.Generator().manual_seed(seed)
@@ -161,10 +155,7 @@ def sampling_options(sampling: dict | None) -> dict:
     if unknown:
         raise ConfigError(f"data.sampling has unknown keys {sorted(unknown)}; it takes kind, resolution, "
                           "uniform_fraction, power and pool.")
-    pool = sampling.get("pool") or 0
-    if isinstance(pool, bool) or not isinstance(pool, int) or pool < 0:
-        raise ConfigError(f"data.sampling.pool={pool!r} must be a non-negative integer (0: fresh samples).")
-    sampling["pool"] = pool
+    sampling["pool"] = sampling.get("pool") or 0  # its value, like the others', is checked by experiments.schema
     return sampling
 
 
