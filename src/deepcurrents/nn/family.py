@@ -10,7 +10,6 @@ Shapes are batched as S shapes × N points. Loops are padded: ``loops`` (S, B, L
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import torch
@@ -21,6 +20,7 @@ from deepcurrents.errors import positive_int
 from deepcurrents.geometry import biot_savart
 from deepcurrents.nn.current import NeuralCurrent, spatial_gradient
 from deepcurrents.nn.encoder import BoundaryEncoder
+from deepcurrents.nn.extensions.window import FieldWindow
 from deepcurrents.nn.field_gradient import check_matmul_precision, closed_form_supported, field_and_gradient
 from deepcurrents.nn.fourier import FourierFeatures
 from deepcurrents.nn.mlp import FieldMLP
@@ -59,13 +59,8 @@ class FamilyCurrent(nn.Module):
             coarse_start, matmul_precision: as ``NeuralCurrent``.
         latent_std: standard deviation of the initial codes (paper: 0.1).
         zero_init_output: zero the decoder's last layer (f ≡ const at the start; False: PyTorch's default).
-        f_turns: > 0 (beyond the paper) confines f to a window of ``f_turns`` full jumps J = 4π·alpha_scale,
-            f = W·tanh(h) with W = f_turns·J/2 and h the decoder's output, so h is in units of the window (the
-            first Adam steps move h by about the learning rate; in f's own units, J ≈ 0.013, one step would
-            saturate it). A minimal current's f is −alpha_scale·Ω on a branch of the solid angle cut along the
-            surface, whose values span exactly one J, so a window of two (the hands' preset) holds it with room
-            while the phase cannot wind again along n (the dome the metric w(I − n nᵀ) leaves free); a window
-            barely above one leaves the outside's f at its edge. 0: unbounded (the paper).
+        f_turns: > 0 (beyond the paper) confines f to a window of ``f_turns`` full jumps, f = W·tanh(h)
+            (``nn.extensions.window``); 0: unbounded (the paper).
     """
 
     def __init__(
@@ -94,7 +89,8 @@ class FamilyCurrent(nn.Module):
                            ("boundary_dim", boundary_dim)):
             positive_int(f"model.{key}", value)
         self.num_loops = int(num_loops)
-        self.alpha_scale, self.f_turns = float(alpha_scale), float(f_turns)  # checked by experiments.schema
+        self.alpha_scale = float(alpha_scale)  # the settings are checked by experiments.schema
+        self.window = FieldWindow(f_turns, self.alpha_scale)  # f = W·tanh(h) (nn.extensions.window; 0: off)
         self.matmul_precision = check_matmul_precision(matmul_precision)
         self.latents = nn.Embedding(int(num_shapes), int(latent_dim))
         nn.init.normal_(self.latents.weight, mean=0.0, std=float(latent_std))
@@ -131,19 +127,18 @@ class FamilyCurrent(nn.Module):
         return self.window(self.mlp.net[1:](h).squeeze(-1))
 
     @property
+    def f_turns(self) -> float:
+        """The window's width in full jumps (``nn.extensions.window``; 0: no window)."""
+        return self.window.turns
+
+    @f_turns.setter
+    def f_turns(self, turns: float) -> None:
+        self.window = FieldWindow(turns, self.alpha_scale)
+
+    @property
     def half_window(self) -> float:
         """W = f_turns·J/2, J = 4π·alpha_scale (0: no window)."""
-        return self.f_turns * 2.0 * math.pi * self.alpha_scale
-
-    def window(self, h: torch.Tensor,
-               grad_h: torch.Tensor | None = None) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
-        """f = W·tanh(h) (``f_turns``; the identity without a window). h (...,) → f; with grad_h (..., 3) also
-        ∇f = W(1 − tanh²)·∇h."""
-        w = self.half_window
-        if w == 0:
-            return h if grad_h is None else (h, grad_h)
-        t = torch.tanh(h)
-        return w * t if grad_h is None else (w * t, (w * (1 - t * t))[..., None] * grad_h)
+        return self.window.half_width
 
     def f(self, x: torch.Tensor, code: torch.Tensor) -> torch.Tensor:
         """f_θ(x; code). x (S, N, 3), code (S, code_dim) → (S, N)."""
