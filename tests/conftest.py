@@ -57,6 +57,14 @@ def compose_cfg(overrides: Sequence[str], hydra_config: bool = False) -> DictCon
         return compose(config_name="train", overrides=list(overrides), return_hydra_config=hydra_config)
 
 
+def validate_overrides(overrides: Sequence[str]) -> None:
+    """The root config with these overrides, checked as a run checks it before anything is built
+    (``experiments.schema``): a bad setting raises its one-sentence ConfigError here."""
+    from deepcurrents.experiments.config import validate_config
+
+    validate_config(compose_cfg(overrides))
+
+
 def load_benchmark(name: str):
     """A script of benchmarks/ (not a package) imported as a module, for tests of its helpers."""
     spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")

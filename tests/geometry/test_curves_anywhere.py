@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import QUIET_CPU, TINY_NET, compose_cfg
+from conftest import QUIET_CPU, TINY_NET, compose_cfg, validate_overrides
 from omegaconf import OmegaConf
 
 from deepcurrents.cli.extract import ExtractConfig, extract_checkpoint
@@ -120,23 +120,14 @@ def test_paper_curves_are_not_moved_by_auto():
 @pytest.mark.parametrize("value", [0, -1.0, float("nan"), float("inf")])
 def test_curve_scale_must_be_positive(value):
     with pytest.raises(ConfigError, match=r"data\.curve_scale=.* must be a positive number"):
-        settings_refused(f"data.curve_scale={value}")
+        validate_overrides(["experiment=minimal_trefoil", f"data.curve_scale={value}"])
 
 
 @pytest.mark.parametrize("key,value", [("normalize", "sometimes"), ("max_vertices_per_loop", 2),
                                        ("max_vertices_per_loop", 2.5)])
 def test_bad_curve_settings_are_one_sentence(key, value):
     with pytest.raises(ConfigError, match=rf"data\.{key}="):
-        settings_refused(f"data.{key}={value}")
-
-
-def settings_refused(override: str) -> None:
-    """A minimal surface's data setting refused before anything is built (experiments.schema, as a run checks it)."""
-    from conftest import compose_cfg
-
-    from deepcurrents.experiments.config import validate_config
-
-    validate_config(compose_cfg(["experiment=minimal_trefoil", override]))
+        validate_overrides(["experiment=minimal_trefoil", f"data.{key}={value}"])
 
 
 def test_curve_scale_zero_through_train_is_a_config_error(tmp_path):

@@ -143,13 +143,11 @@ def test_output_bias_gets_no_gradient_from_the_sharpening():
                                            ({"phase_sharpening": 2.0, "phase_sharpening_start": 1.0}, "fraction"),
                                            ({"phase_sharpening": 2.0, "phase_sharpening_start": "half"}, "fraction")])
 def test_bad_sharpening_values_are_refused(kwargs, words):
-    from conftest import compose_cfg
-
-    from deepcurrents.experiments.config import validate_config
+    from conftest import validate_overrides
 
     overrides = [f"model.net.{key}={value}" for key, value in kwargs.items()]
     with pytest.raises(ConfigError, match=words):  # refused before anything is built
-        validate_config(compose_cfg(["experiment=minimal_trefoil", *overrides]))
+        validate_overrides(["experiment=minimal_trefoil", *overrides])
 
 
 def test_meshers_read_a_sharpened_current_through_its_network_phase():

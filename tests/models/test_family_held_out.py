@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import validate_overrides
 from test_family import SHAPES, compose_cfg, disc_mesh, tiny_overrides, write_family
 
 from deepcurrents.data.family import FamilyDataModule, collate_shapes, split_held_out
@@ -31,13 +32,6 @@ def discs(tmp_path_factory) -> Path:
     disc_mesh(lambda x, y: 1.2 * (0.35**2 - x**2 - y**2), radius=0.25, center=(0.0, 0.0, -0.5)).export(
         d / "003_low_cap.ply")
     return d
-
-
-def settings_refused(override: str) -> None:
-    """A family's setting refused before anything is built (experiments.schema, as a run checks it)."""
-    from deepcurrents.experiments.config import validate_config
-
-    validate_config(compose_cfg(["experiment=latent_hands", override]))
 
 
 def test_held_out_split_takes_the_last_files_and_max_meshes_of_the_others():
@@ -127,7 +121,7 @@ def test_latent_fit_prior_holds_the_code_near_the_training_codes():
     # the first step of each fit sees the same samples at z = μ, where the prior's gradient is zero: same losses
     assert held_history[0] == pytest.approx(free_history[0], rel=1e-6)
     with pytest.raises(ConfigError, match="model.latent_fit.prior_weight=-1"):
-        settings_refused("model.latent_fit.prior_weight=-1.0")
+        validate_overrides(["experiment=latent_hands", "model.latent_fit.prior_weight=-1.0"])
 
 
 def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
@@ -154,7 +148,7 @@ def test_interpolation_loss_is_the_euclidean_mass_of_the_blended_shape():
     short[1, 0, -1] = False
     assert module.interpolation.loss(module.family, z, padded, short, 10) is None
     with pytest.raises(ConfigError, match="interpolation_weight"):
-        settings_refused("model.interpolation_weight=-1.0")
+        validate_overrides(["experiment=latent_hands", "model.interpolation_weight=-1.0"])
 
 
 def test_independent_mix_blends_code_and_boundary_apart():
@@ -181,7 +175,7 @@ def test_independent_mix_blends_code_and_boundary_apart():
         omegas.append(module.member(zk, [loop.numpy()])(x[k], create_graph=False)[1])
     assert float(got.detach()) == pytest.approx(float(current_loss(torch.cat(omegas))), rel=1e-5)
     with pytest.raises(ConfigError, match="model.interpolation_mix='diagonal'"):
-        settings_refused("model.interpolation_mix=diagonal")
+        validate_overrides(["experiment=latent_hands", "model.interpolation_mix=diagonal"])
 
 
 def test_near_interpolation_points_keep_the_uniform_mean_and_sit_on_both_shapes():
@@ -234,7 +228,7 @@ def test_mass_weight_adds_the_shapes_euclidean_mass():
     assert float((weighted["loss"] - plain["loss"]).detach()) == pytest.approx(0.05 * mass, rel=1e-4)
     assert "mass_loss" not in plain
     with pytest.raises(ConfigError, match="model.mass_weight=-1"):
-        settings_refused("model.mass_weight=-1.0")
+        validate_overrides(["experiment=latent_hands", "model.mass_weight=-1.0"])
 
 
 @pytest.mark.slow

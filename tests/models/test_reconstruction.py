@@ -577,18 +577,17 @@ def _dome_and_rim(folder: Path, rim_radius: float) -> tuple[str, str]:
 def test_curve_tolerance_must_be_positive_before_any_file_is_read(tmp_path):
     """data.curve_tolerance=-1 (or 0) made every curve "not near the points (allowed -1 …)"; it is a ConfigError
     naming the setting, raised before the cloud (here a missing file) is read. The dome's own rim still passes."""
-    from conftest import compose_cfg
+    from conftest import validate_overrides
 
     from deepcurrents.errors import ConfigError
-    from deepcurrents.experiments.config import validate_config
 
     points = [f"data.points={tmp_path / 'missing.xyz'}", f"data.curve={tmp_path / 'missing.txt'}"]
     for bad in (-1, 0, "wide"):  # refused by the validator, before anything is built or read
         with pytest.raises(ConfigError, match=rf"^data\.curve_tolerance={bad} must be (a )?positive( number)?\.$"):
-            validate_config(compose_cfg(["experiment=recon_points", *points, f"data.curve_tolerance={bad}"]))
+            validate_overrides(["experiment=recon_points", *points, f"data.curve_tolerance={bad}"])
         # the baseline's noise
         with pytest.raises(ConfigError, match=rf"^data\.near_sigma={bad} must be (a )?positive( number)?\.$"):
-            validate_config(compose_cfg(["experiment=recon_points", *points, f"+data.near_sigma={bad}"]))
+            validate_overrides(["experiment=recon_points", *points, f"+data.near_sigma={bad}"])
     cloud, rim = _dome_and_rim(tmp_path, 0.4)
     assert len(ReconstructionDataModule(points=cloud, curve=rim, curve_tolerance=0.05).loops) == 1
 

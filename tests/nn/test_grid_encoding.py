@@ -71,14 +71,13 @@ def test_impossible_sizes_are_refused_in_one_sentence():
         MultiresGrid(3, base_resolution=16, finest_resolution=8)
     with pytest.raises(ConfigError, match="levels"):
         MultiresGrid(3, levels=0)
-    from conftest import compose_cfg
+    from conftest import validate_overrides
 
-    from deepcurrents.experiments.config import validate_config
     from deepcurrents.models.base import network_kwargs
 
     for bad in (-1, 2.5, "true"):  # a negative level count used to switch the grid off silently
         with pytest.raises(ConfigError, match="model.grid_encoding.levels"):
-            validate_config(compose_cfg(["experiment=minimal_trefoil", f"model.grid_encoding.levels={bad}"]))
+            validate_overrides(["experiment=minimal_trefoil", f"model.grid_encoding.levels={bad}"])
     assert "grid" not in network_kwargs({"width": 8, "depth": 1}, None, {"levels": 0})
 
 

@@ -96,13 +96,11 @@ def test_evaluate_in_chunks_matches_forward():
 
 
 def test_relu_and_bad_activation():
-    from conftest import compose_cfg
-
-    from deepcurrents.experiments.config import validate_config
+    from conftest import validate_overrides
 
     assert isinstance(FieldMLP(4, 8, 2, "relu").net[1], torch.nn.ReLU)
     with pytest.raises(ConfigError, match="activation"):  # refused before anything is built
-        validate_config(compose_cfg(["experiment=minimal_trefoil", "model.net.activation=tanhh"]))
+        validate_overrides(["experiment=minimal_trefoil", "model.net.activation=tanhh"])
 
 
 def test_losses_by_hand():
@@ -424,15 +422,13 @@ def test_family_f_window_is_a_tanh_of_the_decoder_and_both_passes_agree(monkeypa
     assert _relative_error(ref[1], omega) <= 1e-12
     for a, b in zip(grads, ref[2], strict=True):
         assert _relative_error(a, b) <= 1e-10
-    from conftest import compose_cfg
-
-    from deepcurrents.experiments.config import validate_config
+    from conftest import validate_overrides
 
     # refused before anything is built
     with pytest.raises(ConfigError, match=r"model\.net\.f_turns=0\.9 must be 0 \(no window\) or above 1"):
-        validate_config(compose_cfg(["experiment=latent_hands", "model.net.f_turns=0.9"]))
+        validate_overrides(["experiment=latent_hands", "model.net.f_turns=0.9"])
     with pytest.raises(ConfigError, match=r"model\.net\.f_turns=wide must be a non-negative number"):
-        validate_config(compose_cfg(["experiment=latent_hands", "model.net.f_turns=wide"]))
+        validate_overrides(["experiment=latent_hands", "model.net.f_turns=wide"])
 
 
 def test_coarse_to_fine_features_open_in_order_of_frequency():
@@ -576,12 +572,10 @@ def test_phase_harmonics_reach_the_disk_with_constant_outputs():
 
 
 def test_phase_harmonics_refuses_bad_values_in_one_sentence():
-    from conftest import compose_cfg
-
-    from deepcurrents.experiments.config import validate_config
+    from conftest import validate_overrides
 
     for bad in (-1, 2.5):  # refused before anything is built
         with pytest.raises(ConfigError, match="model.net.phase_harmonics"):
-            validate_config(compose_cfg(["experiment=minimal_trefoil", f"model.net.phase_harmonics={bad}"]))
+            validate_overrides(["experiment=minimal_trefoil", f"model.net.phase_harmonics={bad}"])
     with pytest.raises(ConfigError, match="3D boundary"):
-        validate_config(compose_cfg(["experiment=minimal_2d", "model.net.phase_harmonics=4"]))
+        validate_overrides(["experiment=minimal_2d", "model.net.phase_harmonics=4"])

@@ -260,12 +260,11 @@ def train(cfg: DictConfig, out_dir: Path | None = None, resume_hint: str | None 
 
 def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None, member: str | None = None,
                overrides: list[str] | None = None) -> dict[str, Any] | None:
-    validate_config(cfg)
-    if is_global_rank_zero():
-        warn_unread_schedule_settings(cfg, inherited_overrides())
     keep_freed_memory()
     L.seed_everything(positive_int("seed", cfg.seed, minimum=0), workers=True, verbose=False)
-    datamodule, module = build(cfg)
+    datamodule, module = build(cfg)  # checks the settings first (experiments.schema)
+    if is_global_rank_zero():
+        warn_unread_schedule_settings(cfg, inherited_overrides())
     resume = resume_path(cfg.get("ckpt_path"), out_dir)
     resumed_step = _resumed_step(cfg, resume, module)
     check_free_space(out_dir, module)
