@@ -219,3 +219,54 @@ def _seed():
     torch.manual_seed(0)
     np.random.seed(0)
     yield
+
+
+# ------------------------------------------------------------------------------------------ a tiny family
+def disc_mesh(height, rings: int = 6, sectors: int = 24, radius: float = 0.35, center=(0.0, 0.0, 0.0)):
+    """A polar-grid disc z = height(x, y) (one boundary loop, normals towards +z), shifted by ``center``."""
+    r = np.repeat(np.arange(1, rings + 1) / rings * radius, sectors)
+    t = np.tile(np.arange(sectors) / sectors * 2 * np.pi, rings)
+    xy = np.concatenate([[[0.0, 0.0]], np.stack([r * np.cos(t), r * np.sin(t)], 1)])
+    v = np.concatenate([xy, height(xy[:, 0], xy[:, 1])[:, None]], 1) + np.asarray(center)
+    j = np.arange(sectors)
+    faces = [np.stack([np.zeros(sectors, int), 1 + j, 1 + (j + 1) % sectors], 1)]
+    for i in range(rings - 1):
+        a, b = 1 + i * sectors, 1 + (i + 1) * sectors
+        faces += [np.stack([a + j, b + j, b + (j + 1) % sectors], 1),
+                  np.stack([a + j, b + (j + 1) % sectors, a + (j + 1) % sectors], 1)]
+    return trimesh.Trimesh(v, np.concatenate(faces), process=False)
+
+
+SHAPES = {
+    "000_cap": lambda x, y: 1.6 * (0.35**2 - x**2 - y**2),
+    "001_saddle": lambda x, y: 1.5 * (x**2 - y**2),
+    "002_wave": lambda x, y: 0.08 * np.sin(9 * x) - 0.6 * (0.35**2 - x**2 - y**2),
+}
+
+
+# a training family: three different small discs, apart in space so that a few hundred CPU steps suffice
+CENTRES = {"000_cap": (-0.5, 0.0, 0.0), "001_saddle": (0.5, 0.0, 0.0), "002_wave": (0.0, 0.0, 0.55)}
+
+
+def write_family(d: Path) -> Path:
+    """The training family (SHAPES at CENTRES) as d/NNN_name.ply. → d"""
+    for name, h in SHAPES.items():
+        disc_mesh(h, radius=0.25, center=CENTRES[name]).export(d / f"{name}.ply")
+    return d
+
+
+def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
+    """The CPU preset shrunk further. No augmentation and the surface loss weighted ×5 so that the small
+    network leaves the flat-f start within ~100 steps (augmentation has its own tests above); σ = 2 and δ = 0.01
+    (the former preset's): in 150 steps the σ = 4 network's members are fog, whose large meshes made the brute-force
+    border checks of the interpolation test take 75 s instead of 17."""
+    return [
+        "experiment=latent_hands", "preset=cpu", "logger=none", f"data.path={path}", f"paths.output_dir={out}",
+        f"trainer.max_steps={steps}", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
+        "data.meshes_per_batch=3", "data.num_samples=256", "data.num_surface_samples=192", "data.num_workers=0",
+        "data.augment=false", "model.latent_dim=16", "model.boundary_dim=16", "model.surface_weight=5",
+        "model.optim.lr=2e-3", f"model.optim.step_size={steps}", "evaluation.ucd_samples=4000",
+        "evaluation.mesh.resolution=40", f"callbacks.model_checkpoint.every_n_train_steps={steps}",
+        "callbacks.media=null", "model.rff.sigma=2", "model.surface_margin=0.01",
+        "model.optim.schedule=step", "model.latent_lr_factor=1",
+    ]

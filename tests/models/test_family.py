@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 import trimesh
-from conftest import ROOT, compose_cfg, run_command_in_process
+from conftest import ROOT, SHAPES, compose_cfg, disc_mesh, run_command_in_process, tiny_overrides, write_family
 from omegaconf import OmegaConf
 from scipy.spatial.transform import Rotation
 
@@ -31,28 +31,6 @@ from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent, pad_loops
 
 
 # ------------------------------------------------------------------------------------------ fixtures
-def disc_mesh(height, rings: int = 6, sectors: int = 24, radius: float = 0.35, center=(0.0, 0.0, 0.0)):
-    """A polar-grid disc z = height(x, y) (one boundary loop, normals towards +z), shifted by ``center``."""
-    r = np.repeat(np.arange(1, rings + 1) / rings * radius, sectors)
-    t = np.tile(np.arange(sectors) / sectors * 2 * np.pi, rings)
-    xy = np.concatenate([[[0.0, 0.0]], np.stack([r * np.cos(t), r * np.sin(t)], 1)])
-    v = np.concatenate([xy, height(xy[:, 0], xy[:, 1])[:, None]], 1) + np.asarray(center)
-    j = np.arange(sectors)
-    faces = [np.stack([np.zeros(sectors, int), 1 + j, 1 + (j + 1) % sectors], 1)]
-    for i in range(rings - 1):
-        a, b = 1 + i * sectors, 1 + (i + 1) * sectors
-        faces += [np.stack([a + j, b + j, b + (j + 1) % sectors], 1),
-                  np.stack([a + j, b + (j + 1) % sectors, a + (j + 1) % sectors], 1)]
-    return trimesh.Trimesh(v, np.concatenate(faces), process=False)
-
-
-SHAPES = {
-    "000_cap": lambda x, y: 1.6 * (0.35**2 - x**2 - y**2),
-    "001_saddle": lambda x, y: 1.5 * (x**2 - y**2),
-    "002_wave": lambda x, y: 0.08 * np.sin(9 * x) - 0.6 * (0.35**2 - x**2 - y**2),
-}
-
-
 def open_cylinder(sectors: int = 20, rows: int = 5, shuffle: int | None = None) -> trimesh.Trimesh:
     """A tube (two boundary loops, at z = ±0.3); ``shuffle`` renumbers its vertices randomly."""
     t = np.arange(sectors) / sectors * 2 * np.pi
@@ -75,37 +53,9 @@ def open_cylinder(sectors: int = 20, rows: int = 5, shuffle: int | None = None) 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
-# a training family: three different small discs, apart in space so that a few hundred CPU steps suffice
-CENTRES = {"000_cap": (-0.5, 0.0, 0.0), "001_saddle": (0.5, 0.0, 0.0), "002_wave": (0.0, 0.0, 0.55)}
-
-
-def write_family(d: Path) -> Path:
-    """The training family (SHAPES at CENTRES) as d/NNN_name.ply. → d"""
-    for name, h in SHAPES.items():
-        disc_mesh(h, radius=0.25, center=CENTRES[name]).export(d / f"{name}.ply")
-    return d
-
-
 @pytest.fixture(scope="module")
 def family_dir(tmp_path_factory) -> Path:
     return write_family(tmp_path_factory.mktemp("discs"))
-
-
-def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
-    """The CPU preset shrunk further. No augmentation and the surface loss weighted ×5 so that the small
-    network leaves the flat-f start within ~100 steps (augmentation has its own tests above); σ = 2 and δ = 0.01
-    (the former preset's): in 150 steps the σ = 4 network's members are fog, whose large meshes made the brute-force
-    border checks of the interpolation test take 75 s instead of 17."""
-    return [
-        "experiment=latent_hands", "preset=cpu", "logger=none", f"data.path={path}", f"paths.output_dir={out}",
-        f"trainer.max_steps={steps}", "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false",
-        "data.meshes_per_batch=3", "data.num_samples=256", "data.num_surface_samples=192", "data.num_workers=0",
-        "data.augment=false", "model.latent_dim=16", "model.boundary_dim=16", "model.surface_weight=5",
-        "model.optim.lr=2e-3", f"model.optim.step_size={steps}", "evaluation.ucd_samples=4000",
-        "evaluation.mesh.resolution=40", f"callbacks.model_checkpoint.every_n_train_steps={steps}",
-        "callbacks.media=null", "model.rff.sigma=2", "model.surface_margin=0.01",
-        "model.optim.schedule=step", "model.latent_lr_factor=1",
-    ]
 
 
 @pytest.fixture(scope="module")
@@ -884,8 +834,7 @@ def test_an_apps_padding_reaches_a_family_members_meshing_box(trained):
     """extract's padding= (render and evaluate take none) was dropped for family checkpoints (the box came from the
     run's own padding: padding=0, 1 and unset gave bit-identical meshes); a padding of p makes the cube's side
     (1 + 2p) × the box's."""
-    from deepcurrents.cli.common import mesh_settings
-    from deepcurrents.models.loading import load_module
+    from deepcurrents.models.loading import load_module, mesh_settings
 
     out, _, _ = trained
     module = load_module(out / "checkpoints" / "last.ckpt")

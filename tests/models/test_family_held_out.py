@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import validate_overrides
-from test_family import SHAPES, compose_cfg, disc_mesh, tiny_overrides, write_family
+from conftest import SHAPES, compose_cfg, disc_mesh, tiny_overrides, validate_overrides, write_family
 
 from deepcurrents.data.family import FamilyDataModule, collate_shapes, split_held_out
 from deepcurrents.data.targets import MeshTarget, target_sample

@@ -26,7 +26,7 @@ import numpy as np
 import trimesh
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app, run_evaluation
+from deepcurrents.cli.common import output_dir, register_app, run_app
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import (
@@ -40,7 +40,14 @@ from deepcurrents.eval.metrics import (
 )
 from deepcurrents.geometry.meshes import read_mesh, write_mesh
 from deepcurrents.models.current_module import input_mesh
-from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
+from deepcurrents.models.loading import (
+    file_frame,
+    load_module,
+    mesh_settings,
+    resolve_device,
+    run_evaluation,
+    viewable_current,
+)
 from deepcurrents.models.reconstruction import carries_target, input_unit_distances, reconstruction_metrics
 
 log = logging.getLogger("deepcurrents.evaluate")

@@ -18,14 +18,21 @@ import hydra
 import numpy as np
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, register_app, run_app, run_evaluation
+from deepcurrents.cli.common import output_dir, register_app, run_app
 from deepcurrents.errors import ConfigError, number_at_least, number_between, positive_int
 from deepcurrents.eval.meshing import MESH_METHOD_CHOICES, extract_curve_2d, extract_surface
 from deepcurrents.eval.metrics import curve_length, mesh_summary, metrics_json
 from deepcurrents.eval.render import Camera, render_mesh
 from deepcurrents.geometry.meshes import write_mesh
 from deepcurrents.models.current_module import input_mesh, metrics_in_input_units
-from deepcurrents.models.loading import file_frame, load_module, resolve_device, viewable_current
+from deepcurrents.models.loading import (
+    file_frame,
+    load_module,
+    mesh_settings,
+    resolve_device,
+    run_evaluation,
+    viewable_current,
+)
 
 log = logging.getLogger("deepcurrents.extract")
 

@@ -21,14 +21,13 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-import numpy as np
 from omegaconf import MISSING, DictConfig
 
 from deepcurrents.cli.common import plain_file_name, register_app, run_app
 from deepcurrents.cli.families import app_out_dir, load_for_app, mesh_and_measure, write_outputs
 from deepcurrents.errors import ConfigError
-from deepcurrents.geometry.correspondence import match_loops, orientation_agrees
-from deepcurrents.geometry.curves import BoundaryError, load_boundary
+from deepcurrents.geometry.correspondence import align_loops
+from deepcurrents.geometry.curves import load_boundary
 
 log = logging.getLogger("deepcurrents")
 
@@ -51,25 +50,6 @@ class GenerateConfig:
 register_app("generate", GenerateConfig, __doc__)
 
 
-def prepare_loops(loops: list[np.ndarray], reference: list[np.ndarray], source: str) -> list[np.ndarray]:
-    """Orders the new loops like ``reference`` (a training shape's loops) and orients each like its match.
-
-    Raises BoundaryError (one sentence) when the loop counts differ."""
-    if len(loops) != len(reference):
-        raise BoundaryError(
-            f"{source} has {len(loops)} loop{'s' if len(loops) != 1 else ''} but this family's shapes have "
-            f"{len(reference)}; give one closed loop per boundary of the family."
-        )
-    ordered = [loops[j] for j in match_loops(loops, reference)]
-    out = []
-    for b, (lp, ref) in enumerate(zip(ordered, reference, strict=True)):
-        if not orientation_agrees(lp, ref):
-            log.warning("%s: loop %d turns against the family's loop %d; reversed it.", source, b, b)
-            lp = lp[::-1].copy()
-        out.append(lp)
-    return out
-
-
 def generate(cfg: DictConfig) -> dict[str, Any]:
     """Meshes the family member (z_latent, Γ from the curve file). → the report written to <name>.json."""
     if not float(cfg.curve_scale) > 0:
@@ -79,7 +59,7 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
     k = module.check_shape_index(cfg.latent, "latent")
     source = f"curve='{cfg.curve}'"
     boundary = load_boundary(str(cfg.curve), scale=float(cfg.curve_scale), setting="curve")
-    loops = prepare_loops(boundary.loops, module.shape_loops(k), source)
+    loops = align_loops(boundary.loops, module.shape_loops(k), source)
     name = given or f"{Path(str(cfg.curve)).stem}_latent{k}"
     out_dir = app_out_dir(cfg, "generated")
     rec = mesh_and_measure(module, module.latent(k), loops, [k], out_dir, name)

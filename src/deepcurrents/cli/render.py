@@ -21,7 +21,7 @@ import hydra
 import numpy as np
 from omegaconf import MISSING, DictConfig
 
-from deepcurrents.cli.common import mesh_settings, output_dir, plain_file_name, register_app, run_app
+from deepcurrents.cli.common import output_dir, plain_file_name, register_app, run_app
 from deepcurrents.errors import ConfigError, positive_int
 from deepcurrents.eval.meshing import extract_surface
 from deepcurrents.eval.render import (
@@ -37,7 +37,7 @@ from deepcurrents.eval.render import (
     save_mp4,
 )
 from deepcurrents.models.current_module import reported_mesh_area
-from deepcurrents.models.loading import load_module, resolve_device, viewable_current
+from deepcurrents.models.loading import load_module, mesh_settings, resolve_device, viewable_current
 
 log = logging.getLogger("deepcurrents.render")
 

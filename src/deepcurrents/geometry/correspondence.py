@@ -15,10 +15,15 @@ How loops are matched (used by the family dataset and by boundary editing):
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+from deepcurrents.geometry.curves import BoundaryError
+
+log = logging.getLogger("deepcurrents")
 
 
 def loop_vector_area(loop: np.ndarray) -> np.ndarray:
@@ -54,6 +59,25 @@ def best_cyclic_shift(loop: np.ndarray, reference: np.ndarray) -> int:
 def orientation_agrees(loop: np.ndarray, reference: np.ndarray) -> bool:
     """True when the two loops turn the same way (their vector areas have a non-negative dot product)."""
     return float(loop_vector_area(loop) @ loop_vector_area(reference)) >= 0.0
+
+
+def align_loops(loops: Sequence[np.ndarray], reference: Sequence[np.ndarray], source: str) -> list[np.ndarray]:
+    """New loops ordered like ``reference`` (a training shape's loops, by centroids) and each oriented like its match
+    (reversed, with a warning, where it turns the other way), so that a family's current points the way its surfaces
+    do. ``source`` names the loops in messages. BoundaryError (one sentence) when the loop counts differ."""
+    if len(loops) != len(reference):
+        raise BoundaryError(
+            f"{source} has {len(loops)} loop{'s' if len(loops) != 1 else ''} but this family's shapes have "
+            f"{len(reference)}; give one closed loop per boundary of the family."
+        )
+    out = []
+    for b, j in enumerate(match_loops(loops, reference)):
+        lp = np.asarray(loops[j])
+        if not orientation_agrees(lp, reference[b]):
+            log.warning("%s: loop %d turns against the family's loop %d; reversed it.", source, b, b)
+            lp = lp[::-1].copy()
+        out.append(lp)
+    return out
 
 
 def resample_loop(loop: np.ndarray, n: int) -> np.ndarray:

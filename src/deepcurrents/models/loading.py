@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from deepcurrents.errors import UserInputError
+from deepcurrents.eval.meshing import mesh_method
 from deepcurrents.models.base import CHECKPOINT_KEY, DeepCurrentsModule
 from deepcurrents.models.current_module import input_frame
 from deepcurrents.models.reconstruction import TargetGeometry
@@ -323,6 +324,29 @@ def viewable_current(module: torch.nn.Module, ckpt_path: str | Path = "", shape:
         if isinstance(err, UserInputError):
             raise
         raise CheckpointError(f"ckpt_path='{ckpt_path}' has no current to look at: {err}.") from None
+
+
+def run_evaluation(module: Any) -> dict[str, Any]:
+    """The run's ``evaluation`` node as a checkpoint carries it (the module's, else its run config's; {})."""
+    return dict(getattr(module, "evaluation", None) or (getattr(module, "run_config", None) or {}).get("evaluation")
+                or {})
+
+
+def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> dict[str, Any]:
+    """``extract_surface`` keyword arguments: the run's ``evaluation.mesh`` settings, then ``overrides``
+    (None values are ignored). Families mesh a member inside its training shape's box
+    (``module.meshing_bounds``) and reconstructions inside their target's (``module.target_bounds``),
+    since their surfaces reach beyond Γ's box."""
+    settings = dict(run_evaluation(module).get("mesh") or {})
+    settings.update({k: v for k, v in overrides.items() if v is not None})
+    if settings.get("bounds") is None and callable(getattr(module, "meshing_bounds", None)):
+        # the app's padding= (ignored before: the family's box came from the run's own padding)
+        settings["bounds"] = module.meshing_bounds([0 if shape is None else shape], padding=overrides.get("padding"))
+        settings.pop("padding", None)
+    elif settings.get("bounds") is None and callable(getattr(module, "target_bounds", None)):
+        # reconstructions: the run meshed over its target's box, so must the apps
+        settings["bounds"] = module.target_bounds(settings.get("padding", 0.15))
+    return mesh_method(settings, getattr(module, "mesh_method", "phase"))
 
 
 def resolve_device(device: str) -> torch.device:
