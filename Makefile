@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 RUN_DIR ?= outputs/quickstart
 
-.PHONY: setup run test test-fast lint bench clean data
+.PHONY: setup run test test-fast lint bench clean data docs docs-serve tutorial
 
 setup: $(STAMP)
 
@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e ".[dev,sweeps,media]"
+	$(BIN)/pip install --quiet -e ".[dev,sweeps,media,docs]"
 	touch $(STAMP)
 
 # the Anny extra and its one-time cache (~0.8 GB in ~/.cache/anny), built once here so that `make data` and the
@@ -53,8 +53,19 @@ test-fast: setup
 lint: setup
 	$(BIN)/ruff check src tests benchmarks train.py
 
+# the documentation site into site/, warnings (broken links, missing references) as errors; docs-serve previews it
+docs: setup
+	$(BIN)/mkdocs build --strict
+
+docs-serve: setup
+	$(BIN)/mkdocs serve
+
+# the tutorial notebook run at full size with its outputs kept, as the site shows it (the tests run it tiny)
+tutorial: setup
+	cd $(dir $(abspath docs/tutorials/tutorial.ipynb)) && MPLBACKEND=Agg $(abspath $(BIN))/jupyter-execute --inplace tutorial.ipynb
+
 bench: setup
 	$(BIN)/python benchmarks/train_step.py
 
 clean:
-	rm -rf outputs multirun wandb lightning_logs .pytest_cache
+	rm -rf outputs multirun wandb lightning_logs .pytest_cache site

@@ -83,6 +83,7 @@ class Result:
         self._frame = frame  # input = model · scale + offset
         self._mesher = mesher  # resolution → extract_surface's result; None: the run's own meshing settings
         self._said: set = set()  # the coarse-grid warnings this result's meshings have already given
+        self._meshings: dict[int | None, Any] = {}  # by resolution: meshing is the slow part of looking at it
 
     def __repr__(self) -> str:
         where = f", checkpoint='{self.checkpoint}'" if self.checkpoint else ""
@@ -160,9 +161,10 @@ class Result:
                                  "of mesh().")
         if resolution is not None:
             positive_int("resolution", resolution, 8)
-        if self._mesher is not None:
-            return self._mesher(resolution)
-        return extract_surface(current, **mesh_settings(self.module, resolution=resolution), said=self._said)
+        if resolution not in self._meshings:
+            self._meshings[resolution] = self._mesher(resolution) if self._mesher is not None else \
+                extract_surface(current, **mesh_settings(self.module, resolution=resolution), said=self._said)
+        return self._meshings[resolution]
 
     def mesh(self, resolution: int | None = None, *, units: Units = "input") -> trimesh.Trimesh:
         """The surface as a triangle mesh, its border on Γ, by the run's own meshing settings
@@ -170,7 +172,7 @@ class Result:
         run's). In the input's coordinates, as the run's ``mesh.ply``."""
         self._check_units(units)
         mesh = self._surface(resolution).mesh
-        return input_mesh(mesh, self._frame) if units == "input" and self._frame is not None else mesh
+        return input_mesh(mesh, self._frame) if units == "input" and self._frame is not None else mesh.copy()
 
     def curves(self, resolution: int | None = None, *, units: Units = "input") -> list[np.ndarray]:
         """A 2D current's curve: its polylines, each (K, 2)."""

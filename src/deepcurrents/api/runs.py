@@ -216,7 +216,9 @@ def reconstruct(target: Any, *, boundary: Any = None, preset: str = "cpu", recip
             normals, ``.xyz`` rows ``x y z nx ny nz``) when ``boundary`` is given.
         boundary: a point cloud's Γ: loops as arrays (an (M, 3) array or a list of them) or a curve file,
             oriented so that the normals follow the right-hand rule around it. A mesh's Γ is its own border.
-        preset, recipe, max_time, steps, overrides, out_dir, progress: as for :func:`minimal_surface`.
+
+    The other arguments (preset, recipe, max_time, steps, overrides, out_dir, progress) are
+    :func:`minimal_surface`'s.
 
     Returns:
         The trained current (:class:`Result`); its ``metrics`` hold the run's UCD to the target.
