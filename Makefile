@@ -62,7 +62,7 @@ docs-serve: setup
 
 # the tutorial notebook run at full size with its outputs kept, as the site shows it (the tests run it tiny)
 tutorial: setup
-	cd $(dir $(abspath docs/tutorials/tutorial.ipynb)) && MPLBACKEND=Agg $(abspath $(BIN))/jupyter-execute --inplace tutorial.ipynb
+	cd docs/tutorials && ../../$(BIN)/jupyter-execute --inplace tutorial.ipynb
 
 bench: setup
 	$(BIN)/python benchmarks/train_step.py

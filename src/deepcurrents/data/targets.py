@@ -288,7 +288,7 @@ def clear_surface_epsilon(target: MeshTarget | PointCloudTarget, points: np.ndar
     """Per surface sample, the largest ε of ``levels`` geometric steps from ``high`` down to ``low`` at which both
     offset points y ± εn are clear: each lies on its own side of the face nearest to it (y − εn behind it,
     y + εn in front) and at least ``clearance``·ε from Σ. A larger ε is a gentler slope δ / 2ε for the surface
-    hinge (a lower crispness, though mostly by a weaker sheet: README "A range of ε"), but across a finger thinner
+    hinge (a lower crispness, mostly by a weaker sheet: docs/experiments/families.md), but across a finger thinner
     than ε, or into its neighbour, the offset point lands on the wrong side of another sheet and the hinge asks f
     to fill the gap (a mitten). Samples clear at no step keep ``low``.
 

@@ -12,17 +12,14 @@ import logging
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+import trimesh
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
-import trimesh  # noqa: E402
-
-from deepcurrents.eval.plots import figure_pixels, mesh_view, plot_mesh  # noqa: E402
-from deepcurrents.experiments.tables import write_table  # noqa: E402
-from deepcurrents.models.loading import read_checkpoint  # noqa: E402
+from deepcurrents.eval.plots import figure_pixels, mesh_view, plot_mesh
+from deepcurrents.experiments.tables import write_table
+from deepcurrents.models.loading import read_checkpoint
 
 log = logging.getLogger(__name__)
 

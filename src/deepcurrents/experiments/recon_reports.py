@@ -7,12 +7,9 @@ import csv
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import matplotlib.pyplot as plt
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-
-from deepcurrents.experiments.tables import write_table  # noqa: E402
+from deepcurrents.experiments.tables import write_table
 
 # Paper Table 1 (UCD, meshes in [-0.5, 0.5]^3, FAUST parts, 1e4 steps on an RTX 3090)
 PAPER_TABLE1 = {

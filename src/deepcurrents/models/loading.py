@@ -138,7 +138,7 @@ def article(name: str) -> str:
 
 
 def run_kind(cls: type) -> str:
-    """The kind of run a model class is trained by, in the README's words (for messages)."""
+    """The kind of run a model class is trained by, in the documentation's words (for messages)."""
     words = {"AutodecoderModule": "a family run's checkpoint (experiment=latent_*)",
              "ReconstructionModule": "a reconstruction's checkpoint (experiment=recon_*)",
              "CurrentModule": "a minimal surface's checkpoint (experiment=minimal_*)",
