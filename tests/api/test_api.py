@@ -249,3 +249,12 @@ def test_a_path_is_quoted_for_hydra(tmp_path):
     result = dc.minimal_surface(ring, steps=2, overrides=TINY, out_dir=odd / "run")
     assert result.run_dir == odd / "run" and (odd / "run" / "curve.obj").is_file()
     assert Path(json.loads(json.dumps(str(result.checkpoint)))).is_file()
+
+
+def test_a_2d_current_answers_curves_and_its_picture(tmp_path):
+    plane = dc.train("minimal_2d", steps=5, overrides=TINY, out_dir=tmp_path / "2d")
+    assert plane.dim == 2 and plane.f(np.zeros((3, 2))).shape == (3,) and plane.omega(np.zeros((3, 2))).shape == (3, 2)
+    assert all(c.ndim == 2 and c.shape[1] == 2 for c in plane.curves())
+    assert plane.render().shape[2] == 3
+    with pytest.raises(dc.UserInputError, match="use curves"):
+        plane.mesh()
