@@ -171,7 +171,7 @@ def test_mistakes_are_one_sentence_before_anything_is_made(call, words, tmp_path
 def test_a_setting_refused_by_the_schema_is_one_sentence(tmp_path):
     with pytest.raises(dc.ConfigError, match="model.optim.lr"):
         dc.minimal_surface(loop, overrides=[*TINY, "model.optim.lr=-1"], out_dir=tmp_path / "run")
-    assert not (tmp_path / "run" / "checkpoints").exists()  # refused before training
+    assert not (tmp_path / "run").exists()  # refused before its folder was made
 
 
 @pytest.mark.slow

@@ -28,7 +28,7 @@ from deepcurrents.api.inputs import (
 )
 from deepcurrents.api.results import FamilyResult, Result, result_of
 from deepcurrents.errors import ConfigError, UserInputError, number_at_least, positive_int
-from deepcurrents.experiments.config import CONFIG_DIR
+from deepcurrents.experiments.config import CONFIG_DIR, validate_config
 from deepcurrents.experiments.run_dir import make_run_dir
 from deepcurrents.experiments.runner import train
 from deepcurrents.geometry.curves import NAMED_CURVES
@@ -122,7 +122,9 @@ def run(experiment: str, problem: list[str], inputs: InputWriter | None, *, pres
     settings = run_settings(preset, recipe, steps, max_time, overrides, progress)
     head = [f"experiment={experiment}", *problem]
     with hydra_configs():
-        task = str(compose_run([*head, *settings, *overrides]).task_name)  # a wrong name said before any folder
+        first = compose_run([*head, *settings, *overrides])  # a wrong name or setting said before any folder
+        validate_config(first)
+        task = str(first.task_name)
         folder = Path(out_dir).expanduser() if out_dir is not None else default_run_dir(task)
         make_run_dir(folder)
         files = inputs(folder.resolve()) if inputs is not None else []
