@@ -5,9 +5,9 @@
 >>> result = dc.minimal_surface(np.stack([np.cos(t), np.sin(t), 0.3 * np.cos(2 * t)], 1))   # doctest: +SKIP
 >>> result.mesh()                                                                            # doctest: +SKIP
 
-:func:`minimal_surface` and :func:`reconstruct` train (the same configs and runner as ``python train.py``),
-:func:`train` runs any experiment (a suite too), :func:`load` opens any checkpoint; each gives a :class:`Result`
-(a :class:`FamilyResult` for a family). Mistakes raise :class:`~deepcurrents.errors.UserInputError` with one
+`minimal_surface` and `reconstruct` train (the same configs and runner as ``python train.py``),
+`train` runs any experiment (a suite too), `load` opens any checkpoint; each gives a `Result`
+(a `FamilyResult` for a family). Mistakes raise `deepcurrents.errors.UserInputError` with one
 sentence, before anything trains.
 """
 

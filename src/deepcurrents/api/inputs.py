@@ -57,7 +57,7 @@ def array_loops(curve: Any, name: str = "curve") -> list[np.ndarray]:
 
 
 def curve_loops(curve: Any, name: str = "curve", domain: float = 1.0) -> list[np.ndarray]:
-    """Loops from arrays (:func:`array_loops`) or from a curve file or named curve, as its coordinates say (a
+    """Loops from arrays (`array_loops`) or from a curve file or named curve, as its coordinates say (a
     file's loops must lie within ``domain`` of the origin in each coordinate)."""
     if is_path(curve):
         return [np.asarray(lp, np.float64) for lp in load_boundary(str(curve), setting=name, domain=domain).loops]
@@ -65,7 +65,7 @@ def curve_loops(curve: Any, name: str = "curve", domain: float = 1.0) -> list[np
 
 
 def write_curve(loops: list[np.ndarray], folder: Path, name: str = "curve") -> Path:
-    """Loops (checked by :func:`array_loops`) written to ``folder/<name>.obj`` (one ``l`` per loop, read back
+    """Loops (checked by `array_loops`) written to ``folder/<name>.obj`` (one ``l`` per loop, read back
     exactly). → the file."""
     path = folder / f"{name}.obj"
     write_curve_file(path, loops)
@@ -96,7 +96,7 @@ def oriented_points(target: tuple[Any, Any]) -> np.ndarray:
 
 
 def write_oriented_points(rows: np.ndarray, folder: Path) -> Path:
-    """Rows ``x y z nx ny nz`` (:func:`oriented_points`) written to ``folder/points.npy``, what ``data.points``
+    """Rows ``x y z nx ny nz`` (`oriented_points`) written to ``folder/points.npy``, what ``data.points``
     reads. → the file."""
     path = folder / "points.npy"
     np.save(path, rows)

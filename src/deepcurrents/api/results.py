@@ -1,5 +1,5 @@
 """What the Python API hands back: a trained current to ask for f, ω, a mesh, a picture and numbers
-(:class:`Result`), and a family of them (:class:`FamilyResult`).
+(`Result`), and a family of them (`FamilyResult`).
 
 Points, meshes, boundaries and areas are in the coordinates of the input the run was given (the units of your
 curve or mesh): a run that moved its input into the box U = [-1, 1]³ (``data.normalize``) maps them back, as its
@@ -148,7 +148,7 @@ class Result:
 
     def omega(self, x: Any, *, units: Units = "input", chunk_size: int = 1 << 15) -> np.ndarray:
         """The current ω = ∇f_θ + α_Γ at points x: (N, d) → (N, d). In input units it is the model's ω divided by
-        :attr:`scale` (a 1-form), so that ∫|ω| dx keeps its meaning as an area."""
+        `scale` (a 1-form), so that ∫|ω| dx keeps its meaning as an area."""
         _, w = self._evaluate(x, units, True, chunk_size)
         w = w.cpu().double().numpy()
         return w if units == "model" else w / self.scale
@@ -222,7 +222,7 @@ class Result:
 
     # ---------------------------------------------------------------------------------------------- files
     def save(self, path: str | Path) -> Path:
-        """Writes what ``path``'s suffix names: ``.ckpt`` the checkpoint (atomically; :func:`deepcurrents.load`
+        """Writes what ``path``'s suffix names: ``.ckpt`` the checkpoint (atomically; `deepcurrents.load`
         reads it back), ``.ply``/``.obj``/``.off``/``.stl``/``.glb`` the mesh, ``.png``/``.jpg`` the render. → path."""
         path = Path(path).expanduser()
         suffix = path.suffix.lower()
@@ -266,7 +266,7 @@ InterpolationMode = Literal["latent", "boundary", "both"]
 class FamilyResult:
     """A family of surfaces (paper §4.3, §5.3): one network, a latent code per training shape, Γ as the handle.
 
-    Each of :meth:`member`, :meth:`interpolate` and :meth:`generate` gives a :class:`Result` (f, ω, mesh,
+    Each of `member`, `interpolate` and `generate` gives a `Result` (f, ω, mesh,
     render, mass bound) of one surface of the family.
     """
 

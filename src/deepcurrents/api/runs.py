@@ -1,6 +1,6 @@
-"""Training from Python: :func:`minimal_surface` and :func:`reconstruct` compose the same Hydra configs as
+"""Training from Python: `minimal_surface` and `reconstruct` compose the same Hydra configs as
 ``python train.py`` (an experiment, a preset, a recipe, overrides) and run them through the same runner, so the
-same settings and seed give the same metrics; :func:`load` opens any checkpoint the project writes."""
+same settings and seed give the same metrics; `load` opens any checkpoint the project writes."""
 
 from __future__ import annotations
 
@@ -152,8 +152,8 @@ def train_experiment(experiment: str, *, preset: str = "cpu", recipe: str | None
     ``python train.py experiment=<name> preset=<preset> <overrides>`` runs it.
 
     Returns:
-        The run's :class:`Result` (:class:`FamilyResult` for a family); for a suite (Fig. 4, Table 1, the
-        ablation) a dict of its members' results by name, its table and figure written into ``out_dir``.
+        The run's `Result` (a `FamilyResult` for a family), or for a suite (Fig. 4, Table 1, the ablation) a
+        dict of its members' results by name, with its table and figure written into ``out_dir``.
     """
     if not isinstance(experiment, str) or not experiment:
         raise ConfigError(f"experiment={experiment!r} must be the name of a file in conf/experiment/.")
@@ -182,8 +182,8 @@ def minimal_surface(curve: Any, *, preset: str = "cpu", recipe: str | None = Non
         progress: show the progress bar (it works in a notebook).
 
     Returns:
-        The trained current (:class:`Result`): ``mesh()``, ``f(x)``, ``omega(x)``, ``mass_bound()``, ``render()``,
-        ``metrics``.
+        The trained current, a `Result` with ``mesh()``, ``f(x)``, ``omega(x)``, ``mass_bound()``, ``render()``
+        and ``metrics``.
 
     Raises:
         UserInputError: a curve or setting that cannot be used, in one sentence (before anything trains).
@@ -220,10 +220,10 @@ def reconstruct(target: Any, *, boundary: Any = None, preset: str = "cpu", recip
             oriented so that the normals follow the right-hand rule around it. A mesh's Γ is its own border.
 
     The other arguments (preset, recipe, max_time, steps, overrides, out_dir, progress) are
-    :func:`minimal_surface`'s.
+    `minimal_surface`'s.
 
     Returns:
-        The trained current (:class:`Result`); its ``metrics`` hold the run's UCD to the target.
+        The trained current, a `Result` whose ``metrics`` hold the run's UCD to the target.
     """
     if boundary is None:
         if isinstance(target, tuple):
@@ -266,14 +266,14 @@ def load(path: str | Path, *, device: str = "auto") -> Result | FamilyResult:
     closest-point baseline, a family), or a run's folder (its ``checkpoints/last.ckpt``).
 
     Read safely: only tensors and plain data are unpickled, so a crafted file cannot run code; a file that is not
-    a DeepCurrents checkpoint is refused in one sentence (:class:`CheckpointError`).
+    a DeepCurrents checkpoint is refused in one sentence (`CheckpointError`).
 
     Args:
         path: the checkpoint file or the run folder.
         device: ``auto`` (a CUDA GPU where there is one), ``cpu``, ``cuda``, ``cuda:1``, ….
 
     Returns:
-        :class:`Result` for one current, :class:`FamilyResult` for a family.
+        A `Result` for one current, a `FamilyResult` for a family.
     """
     given = Path(path).expanduser()
     if given.is_dir():
