@@ -294,15 +294,7 @@ class FamilyResult:
         current = module.member(z, loops)
 
         def mesher(resolution: int | None):
-            if resolution is None:
-                return module.mesh_member(current, module.meshing_bounds(shapes, loops))
-            evaluation = module.evaluation
-            saved = dict(evaluation.get("mesh", {}))
-            evaluation["mesh"] = {**saved, "resolution": int(resolution)}
-            try:
-                return module.mesh_member(current, module.meshing_bounds(shapes, loops))
-            finally:
-                evaluation["mesh"] = saved
+            return module.mesh_member(current, module.meshing_bounds(shapes, loops), resolution)
 
         return Result(module, current, name=name, run_dir=self.run_dir, mesher=mesher)
 

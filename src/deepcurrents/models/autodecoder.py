@@ -217,9 +217,12 @@ class AutodecoderModule(DeepCurrentsModule):
             padding = self.evaluation.get("padding", dict(self.evaluation.get("mesh", {})).get("padding", 0.1))
         return meshing_cube(boxes, float(padding))
 
-    def mesh_member(self, current: ConditionedCurrent, bounds: np.ndarray):
-        """``extract_surface`` of a member with the evaluation's meshing settings in ``bounds``."""
+    def mesh_member(self, current: ConditionedCurrent, bounds: np.ndarray, resolution: int | None = None):
+        """``extract_surface`` of a member with the evaluation's meshing settings in ``bounds`` (``resolution``: cells
+        along the longest side instead of the evaluation's)."""
         mesh_cfg = {k: v for k, v in dict(self.evaluation.get("mesh", {})).items() if k not in ("bounds", "padding")}
+        if resolution is not None:
+            mesh_cfg["resolution"] = int(resolution)
         return extract_surface(current, bounds=bounds, **mesh_method(mesh_cfg, self.mesh_method),
                                resolution_key=self.MESH_RESOLUTION_KEY, said=self.meshing_said)
 
