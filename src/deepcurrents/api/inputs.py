@@ -41,6 +41,15 @@ def is_path(value: Any) -> bool:
     return isinstance(value, (str, Path))
 
 
+def existing_file(path: str | Path, name: str) -> Path:
+    """``path`` expanded and resolved, or UserInputError naming ``name`` when no such file exists (said before a run
+    folder is made for it)."""
+    file = Path(path).expanduser().resolve()
+    if not file.is_file():
+        raise UserInputError(f"{name}='{path}' is not a file.")
+    return file
+
+
 def array_loops(curve: Any, name: str = "curve") -> list[np.ndarray]:
     """The loops of a curve given as arrays: one (M, 3) array (one loop), a (B, M, 3) array, or a list of (M_i, 3)
     arrays; each checked (shape, at least 3 vertices, finite), or UserInputError naming it."""

@@ -20,6 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from deepcurrents.api.inputs import (
     array_loops,
     curve_loops,
+    existing_file,
     is_path,
     oriented_points,
     write_curve,
@@ -230,7 +231,7 @@ def reconstruct(target: Any, *, boundary: Any = None, preset: str = "cpu", recip
             raise UserInputError("reconstruct((points, normals)) needs boundary=…: the loops Γ of the surface (an "
                                  "(M, 3) array, a list of them, or a curve file).")
         if is_path(target):
-            problem, inputs = [f"data.mesh={quoted(Path(target).expanduser().resolve())}"], None
+            problem, inputs = [f"data.mesh={quoted(existing_file(target, 'target'))}"], None
         elif isinstance(target, trimesh.Trimesh):
             if len(target.faces) == 0:
                 raise UserInputError("target is a trimesh.Trimesh without faces; give a triangle mesh with a "
@@ -249,12 +250,14 @@ def reconstruct(target: Any, *, boundary: Any = None, preset: str = "cpu", recip
     if not (is_path(target) or isinstance(target, tuple) and len(target) == 2):
         raise UserInputError(f"target is a {type(target).__name__}; with boundary=… give (points, normals) or a "
                              "point-cloud file.")
-    rows = None if is_path(target) else oriented_points(target)  # checked before a folder is made for them
-    loops = None if is_path(boundary) else array_loops(boundary, "boundary")
+    # checked before a folder is made for them
+    rows, cloud = (None, existing_file(target, "target")) if is_path(target) else (oriented_points(target), None)
+    loops, rim = (None, existing_file(boundary, "boundary")) if is_path(boundary) else \
+        (array_loops(boundary, "boundary"), None)
 
     def inputs(folder: Path) -> list[str]:
-        points = Path(target).expanduser().resolve() if rows is None else write_oriented_points(rows, folder)
-        curve = Path(boundary).expanduser().resolve() if loops is None else write_curve(loops, folder, "boundary")
+        points = cloud if rows is None else write_oriented_points(rows, folder)
+        curve = rim if loops is None else write_curve(loops, folder, "boundary")
         return [f"data.points={quoted(points)}", f"data.curve={quoted(curve)}"]
 
     return run("recon_points", [], inputs, preset=preset, recipe=recipe, steps=steps, max_time=max_time,
