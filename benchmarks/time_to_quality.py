@@ -14,7 +14,8 @@ region. Afterwards, outside it, every copy is scored:
 - ``mass_area / exact``: the mass bound E|ω| · vol(U) / (4π·alpha_scale), estimated with UNIFORM samples
   (``--mass-samples``, 2^16 by default; the final copy 4× more) whatever the recipe sampled while training, so
   it stays an upper bound of the exact minimal area up to its standard error;
-- with ``--mesh``, the final copy's phase mesh area against the exact area.
+- with ``--mesh``, the final copy's phase mesh area against the exact area, and that mesh polished
+  (``eval.meshing.polish``: the finest level, the extrapolation for Γ's polyline and for the smooth curve).
 
 Curves with exact minimal areas (polygon areas for planar polygons, closed forms otherwise):
 ``circle05`` (R = 0.5, 200 vertices), ``tilted_square`` and ``ellipse`` (examples/curves), ``catenoid`` (two
@@ -56,7 +57,8 @@ from omegaconf.errors import OmegaConfBaseException
 from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.errors import UserInputError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
-from deepcurrents.eval.meshing import extract_surface
+from deepcurrents.eval.meshing import extract_surface, mesh_method
+from deepcurrents.eval.meshing.polish import PolishSettings, polish_minimal_surface
 from deepcurrents.eval.metrics import mass_to_area
 from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.experiments.runner import build, instantiate
@@ -396,7 +398,6 @@ def eval_cost(overrides: list[str], steps: int, reference_steps: int = 3000) -> 
     (2^20 plain stratified samples, and as the final evaluation draws it: refined near Γ by
     evaluation.mass_refine, stopped at evaluation.mass_rel_stderr) and the phase mesh at evaluation.mesh; the
     ratios are to ``reference_steps`` steps at the measured seconds per step (preset=cpu's 3000)."""
-    from deepcurrents.eval.meshing import mesh_method
     from deepcurrents.eval.metrics import mass_estimate, mass_estimate_settings
 
     module, cfg, copies = train_recipe(overrides, 0.0, 1, steps=steps)
@@ -534,7 +535,7 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
         areas = {"mass_area": mass * scale, "mass_area_stderr": stderr * scale}
         if last and mesh:
             t = time.perf_counter()
-            opts = {k: v for k, v in dict(cfg.evaluation.mesh).items() if k != "method"}
+            opts = mesh_method(dict(cfg.evaluation.mesh), "phase")
             opts.update(resolution=mesh_resolution, method="phase")
             with torch.no_grad():
                 result = extract_surface(current, **opts)
@@ -544,11 +545,22 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
                 tube_radius=float(cfg.evaluation.get("mass_tube_radius") or 0.0))
             areas.update(mesh_area=float(result.mesh.area), mesh_seconds=time.perf_counter() - t,
                          mass_area_sharpened=sharp, mass_area_sharpened_stderr=sharp_err)
+            # the same mesh finished by the area flow (eval.meshing.polish), as a run's mesh_polished.ply
+            polish = dict(dict(cfg.evaluation.mesh).get("polish") or {})
+            if polish.pop("enabled", True):
+                polished = polish_minimal_surface(result.mesh, module.boundary_loops(), PolishSettings(**polish))
+                if polished.stopped is None:
+                    areas.update(mesh_area_polished=polished.area, mesh_area_extrapolated=polished.extrapolated,
+                                 mesh_area_smooth_curve=polished.curve_extrapolated,
+                                 polish_seconds=polished.seconds)
         if frame is not None:  # trained scaled into the safe box (data.normalize=auto): the curve's units, as
             areas = metrics_in_input_units(areas, *frame)  # metrics.json's, which the exact area is in
         row = {k: v for k, v in rec.items() if k != "state"}
         row.update(areas, ratio=areas["mass_area"] / exact)
         if "mesh_area" in areas:
+            for key in ("mesh_area_polished", "mesh_area_extrapolated", "mesh_area_smooth_curve"):
+                if areas.get(key) is not None:
+                    row[key.replace("mesh_area", "error")] = areas[key] / exact - 1.0
             row.update(mesh_error=areas["mesh_area"] / exact - 1.0,
                        sharpened_ratio=areas["mass_area_sharpened"] / exact,
                        sharpened_ratio_stderr=areas["mass_area_sharpened_stderr"] / exact)
@@ -606,7 +618,8 @@ def plot(rows: list[dict], path: Path, threshold: float) -> None:
 
 
 FIELDS = ["curve", "heldout", "recipe", "steps", "seconds", "train_seconds", "cpu_seconds", "mass_area",
-          "mass_area_stderr", "exact", "ratio", "mesh_area", "mesh_error", "mesh_seconds", "sharpened_ratio",
+          "mass_area_stderr", "exact", "ratio", "mesh_area", "mesh_error", "mesh_seconds", "error_polished",
+          "error_extrapolated", "error_smooth_curve", "polish_seconds", "sharpened_ratio",
           "sharpened_ratio_stderr", "final_ratio", "final_ratio_stderr", "final_mesh_error", "evaluation_seconds",
           "load_before", "load_after"]
 
@@ -808,6 +821,10 @@ def main() -> None:
                 rows.extend(scored)
                 last = scored[-1]
                 mesh = f", mesh {last['mesh_error']:+.2%}" if "mesh_error" in last else ""
+                if "error_smooth_curve" in last:
+                    mesh += (f", polished {last['error_polished']:+.1e} (extrapolated "
+                             f"{last['error_extrapolated']:+.1e}, smooth curve {last['error_smooth_curve']:+.1e}) "
+                             f"in {last['polish_seconds']:.1f} s")
                 if "sharpened_ratio" in last:
                     mesh += (f", sharpened bound/exact {last['sharpened_ratio']:.4f} "
                              f"± {last['sharpened_ratio_stderr']:.4f}")

@@ -18,6 +18,7 @@ from deepcurrents.geometry.polyline import (
     polyline_hausdorff,
     project_to_segments,
     sample_tube,
+    segment_distance,
     tube_density,
 )
 from deepcurrents.geometry.topology import border_edges
@@ -103,6 +104,9 @@ def cells_near_boundary(k: int, dim: int, segments: tuple[torch.Tensor, torch.Te
     cell Γ passes through, whose centre is at most √d/2 sides from it, and a layer or two around them).
     → (k^dim,) bool."""
     centres = ((_cell_corners(k, dim).double() + 0.5) / k) * 2.0 - 1.0
+    if dim == 3:  # an AABB tree on Γ's segments: O((N + S) log S)
+        starts, ends = (np.asarray(t.detach().cpu().double()) for t in segments)
+        return torch.from_numpy(segment_distance(centres.numpy(), starts, ends) < reach * 2.0 / k)
     return project_to_segments(centres, *segments).distance < reach * 2.0 / k
 
 

@@ -24,7 +24,8 @@ from deepcurrents.models.loading import read_checkpoint
 log = logging.getLogger(__name__)
 
 METHODS = {"grid": "Wang & Chern (grid)", "network": "DeepCurrents"}
-COLUMNS = ["method", "curve", "parameters", "mass_area", "mesh_area", "boundary_error", "seconds"]
+COLUMNS = ["method", "curve", "parameters", "mass_area", "mesh_area", "mesh_area_polished", "mesh_area_extrapolated",
+           "mesh_area_smooth_curve", "surface", "boundary_error", "seconds"]
 # the boundary's own tensors in a checkpoint's state_dict: not parameters of the representation
 BOUNDARY_BUFFERS = ("vertices", "loop_sizes", "poles", "signs")
 
@@ -59,6 +60,11 @@ def load_member(result: dict[str, Any]) -> dict[str, Any]:
         "parameters": metrics.get("parameters", representation_size(ckpt["state_dict"])),
         "mass_area": metrics.get("mass_area"),
         "mesh_area": metrics.get("mesh_area"),
+        # the mesh finished by the area flow (eval.meshing.polish; minimal surfaces of the current, not the grid's)
+        "mesh_area_polished": metrics.get("mesh_area_polished"),
+        "mesh_area_extrapolated": metrics.get("mesh_area_extrapolated"),
+        "mesh_area_smooth_curve": metrics.get("mesh_area_smooth_curve"),
+        "surface": metrics.get("surface"),
         "boundary_error": metrics.get("boundary_error"),
         # the grid's α sampling is part of its cost (the network pays for α at every step)
         "seconds": metrics.get("seconds", metrics.get("train_seconds")),

@@ -351,6 +351,8 @@ def _final_evaluation(cfg: DictConfig, trainer: L.Trainer, module: L.LightningMo
         metrics["evaluation_seconds"] = round(time.perf_counter() - started, 3)
         module.write_metrics(out_dir, metrics)
     log.info("metrics: %s", json.dumps(metrics))
+    if metrics is not None and (sentence := module.summary(metrics)):
+        log.info("%s", sentence)
     for cb in trainer.callbacks:  # final media (deepcurrents.models.callbacks.MediaCallback) before loggers close
         hook = getattr(cb, "on_final_evaluation", None)
         if callable(hook):

@@ -338,6 +338,19 @@ class Sharpened:
 
 
 @dataclass
+class Polish:
+    """``evaluation.mesh.polish``: minimal surfaces' mesh flow after the extraction (eval.meshing.polish)."""
+    enabled: bool = setting(True, "polish the final mesh (mesh_polished.ply, mesh_area_polished, _extrapolated)",
+                            boolean)
+    edge_length: float = setting(0.025, "level 1's edge length, a share of Γ's largest extent", between(1e-4, 0.5))
+    levels: int = setting(3, "meshes of edges h, h/2, …: two or more give the Richardson extrapolation", integer())
+    tolerance: float = setting(1.0e-7, "a level ends when its area changes by less than this share a step",
+                               at_least(strict=True))
+    max_iterations: int = setting(100, "most steps of the flow per level", integer())
+    remesh_iterations: int = setting(10, "iterations of the isotropic remesher before level 1", integer())
+
+
+@dataclass
 class MeshEvaluation:
     """``evaluation.mesh``: the final 3D mesh (eval.meshing)."""
     method: str = setting("auto", "phase, level_set or auto (phase for minimal surfaces, level_set otherwise)",
@@ -356,6 +369,7 @@ class MeshEvaluation:
                                      integer())
     level_blend: float = setting(0.0, "level_set: distance to Γ within which the level follows f along Γ",
                                  nonnegative)
+    polish: Polish = group(Polish, "the minimal surface's mesh flow")
 
 
 @dataclass

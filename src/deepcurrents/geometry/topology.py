@@ -4,6 +4,8 @@ they form. Shared by the targets (Γ of a mesh), the meshing (closing a cut bord
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -86,3 +88,48 @@ def edge_walks(edges: list[tuple[int, int]] | list[list[int]], directed: bool
         if len(walk) > 1:
             walks.append((walk, along, False))
     return walks
+
+
+@dataclass(frozen=True)
+class SurfaceTopology:
+    """Which surface a triangle mesh is: its connected pieces, border loops, Euler characteristic χ = V − E + F and
+    genus g (χ = Σ_pieces (2 − 2g_i − b_i) for an oriented surface with b border loops), and whether it is an
+    oriented 2-manifold (each edge in at most two faces, run opposite ways), without which g means nothing."""
+
+    components: int
+    border_loops: int
+    euler_characteristic: int
+    genus: int
+    manifold: bool
+
+    def describe(self) -> str:
+        """In words, e.g. "a disk (genus 0, 1 border loop, χ = 1)"."""
+        facts = (f"genus {self.genus}, {self.border_loops} border loop{'s' * (self.border_loops != 1)}, "
+                 f"χ = {self.euler_characteristic}")
+        if not self.manifold:
+            return f"not an oriented manifold ({facts})"
+        names = {(1, 0, 1): "a disk", (1, 0, 2): "an annulus", (2, 0, 2): "two disks"}
+        name = names.get((self.components, self.genus, self.border_loops))
+        if name is None:
+            pieces = f"{self.components} pieces" if self.components != 1 else "one piece"
+            name = f"a surface in {pieces}"
+        return f"{name} ({facts})"
+
+
+def surface_topology(faces: np.ndarray) -> SurfaceTopology:
+    """``SurfaceTopology`` of a triangle mesh from its faces (F, 3) alone (unused vertices do not count)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    faces = np.asarray(faces, dtype=np.int64)
+    used, local = np.unique(faces, return_inverse=True)
+    local = local.reshape(faces.shape)
+    directed = np.concatenate([local[:, [0, 1]], local[:, [1, 2]], local[:, [2, 0]]])
+    undirected, counts = np.unique(np.sort(directed, 1), axis=0, return_counts=True)
+    manifold = bool(counts.max(initial=0) <= 2 and len(np.unique(directed, axis=0)) == len(directed))
+    n = len(used)
+    graph = coo_matrix((np.ones(len(undirected)), (undirected[:, 0], undirected[:, 1])), shape=(n, n))
+    components = int(connected_components(graph, directed=False)[0]) if n else 0
+    chi = n - len(undirected) + len(faces)
+    loops = len(border_loops(faces))
+    return SurfaceTopology(components, loops, int(chi), int((2 * components - chi - loops) // 2), manifold)

@@ -182,6 +182,10 @@ class DeepCurrentsModule(L.LightningModule):
         target) return one view for both."""
         return None
 
+    def summary(self, metrics: dict[str, Any]) -> str | None:
+        """One sentence on what the final evaluation found, for the log (None: the metrics speak for themselves)."""
+        return None
+
     def write_mesh(self, out_dir: str | Path, result: Any, loops: list[np.ndarray], title: str,
                    export: trimesh.Trimesh | None = None) -> dict[str, Any]:
         """``mesh.ply`` and ``mesh.png`` (seen as ``picture_view`` says) of a meshing result (a

@@ -13,7 +13,9 @@ import trimesh
 from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method, mesh_region
+from deepcurrents.eval.meshing.polish import PolishSettings, polish_minimal_surface
 from deepcurrents.eval.metrics import (
+    boundary_error,
     curve_boundary_error,
     curve_length,
     mass_estimate,
@@ -21,6 +23,8 @@ from deepcurrents.eval.metrics import (
     mass_to_area,
 )
 from deepcurrents.eval.plots import plot_current_2d
+from deepcurrents.geometry.meshes import write_mesh
+from deepcurrents.geometry.topology import SurfaceTopology, surface_topology
 from deepcurrents.losses import current_loss
 from deepcurrents.models.base import DeepCurrentsModule, network_kwargs
 from deepcurrents.nn import neural_current
@@ -56,7 +60,20 @@ def reported_mesh_area(module, area: float) -> float:
 # metrics that are lengths or areas, and their power of the scale
 _LENGTH_KEYS = {"mass_area": 2, "mass_area_stderr": 2, "mass_area_lower": 2, "mass_area_mc": 2,
                 "mass_area_mc_stderr": 2, "mass_area_sharpened": 2, "mass_area_sharpened_stderr": 2,
-                "mesh_area": 2, "mesh_closed_area_dropped": 2, "boundary_error": 1}
+                "mesh_area": 2, "mesh_closed_area_dropped": 2, "boundary_error": 1, "mesh_area_polished": 2,
+                "mesh_area_polished_error": 2, "mesh_area_extrapolated": 2, "mesh_area_extrapolated_error": 2,
+                "mesh_area_smooth_curve": 2, "mesh_area_smooth_curve_error": 2, "polish_edge_length": 1,
+                "boundary_error_polished": 1}
+
+
+def topology_metrics(topology: SurfaceTopology | None) -> dict[str, Any]:
+    """The surface's topology as metrics: ``surface`` in words, its genus, border loops, Euler characteristic and
+    pieces."""
+    if topology is None:
+        return {}
+    return {"surface": topology.describe(), "surface_genus": topology.genus,
+            "surface_border_loops": topology.border_loops,
+            "surface_euler_characteristic": topology.euler_characteristic, "surface_components": topology.components}
 
 
 def input_mesh(mesh: trimesh.Trimesh, frame: tuple[float, np.ndarray]) -> trimesh.Trimesh:
@@ -89,6 +106,9 @@ class CurrentModule(DeepCurrentsModule):
         optim: {"lr", "step_size", "gamma"} — Adam with lr × gamma every step_size steps.
         evaluation: {"mass_samples", "mesh": {...extract_surface kwargs}, "curve": {...}}.
     """
+
+    # the final mesh is a minimal surface, which evaluation.mesh.polish finishes (a reconstruction's is not)
+    polishes_mesh = True
 
     def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
                  evaluation: dict | None = None, grid_encoding: dict | None = None):
@@ -160,6 +180,7 @@ class CurrentModule(DeepCurrentsModule):
             title = f"{self.hparams.boundary.get('name', '')}: area {reported_mesh_area(self, result.mesh.area):.4g}"
             metrics.update(self.write_mesh(out_dir, result, loops, title, export=export))
             metrics.update(self.sharpened_bound(result))
+            metrics.update(self.polished_mesh(out_dir, result.mesh, frame))
             if frame is not None:
                 metrics = metrics_in_input_units(metrics, *frame)
         else:
@@ -185,6 +206,61 @@ class CurrentModule(DeepCurrentsModule):
                                                 result.level + math.pi, kappa=kappa, num_samples=samples, seed=seed,
                                                 tube_radius=float(self.evaluation.get("mass_tube_radius") or 0.0))
         return {"mass_area_sharpened": bound, "mass_area_sharpened_stderr": stderr, "sharpened_kappa": kappa}
+
+    def polished_mesh(self, out_dir: Path, mesh: trimesh.Trimesh, frame: tuple[float, np.ndarray] | None
+                      ) -> dict[str, Any]:
+        """``mesh_polished.ply`` (in the input's coordinates where ``frame`` is given) and its areas: the extracted
+        mesh moved by the area flow of ``eval.meshing.polish`` with Γ (float64, as the run read it) fixed, when
+        ``evaluation.mesh.polish.enabled``; the surface's topology always. Areas in model units here."""
+        options = dict(dict(self.evaluation.get("mesh", {})).get("polish") or {})
+        loops = self.boundary_loops()
+        if not options.pop("enabled", True) or not self.polishes_mesh or len(mesh.faces) == 0:
+            return topology_metrics(surface_topology(mesh.faces)) if len(mesh.faces) else {}
+        polished = polish_minimal_surface(mesh, loops, PolishSettings(**options))
+        metrics = {**topology_metrics(polished.topology), "polish_seconds": round(polished.seconds, 3),
+                   "polish_holes_filled": polished.holes_filled, "polish_stopped": polished.stopped}
+        if polished.stopped is not None:
+            return metrics
+        write_mesh(input_mesh(polished.mesh, frame) if frame is not None else polished.mesh,
+                   out_dir / "mesh_polished.ply")
+        return {**metrics, "mesh_area_polished": polished.area, "mesh_area_polished_error": polished.area_error,
+                "mesh_area_extrapolated": polished.extrapolated,
+                "mesh_area_extrapolated_error": polished.extrapolated_error,
+                "mesh_area_smooth_curve": polished.curve_extrapolated,
+                "mesh_area_smooth_curve_error": polished.curve_extrapolated_error,
+                "mesh_faces_polished": int(len(polished.mesh.faces)), "polish_edge_length": polished.edge_lengths[-1],
+                "polish_iterations": polished.iterations,
+                "boundary_error_polished": boundary_error(polished.mesh, loops)}
+
+    def boundary_loops(self) -> list[np.ndarray]:
+        """Γ in model units as float64 (M_i, 3) arrays: as the run read it where the hyperparameters hold it (the
+        current's buffers are float32)."""
+        spec = (getattr(self, "hparams", None) or {}).get("boundary") or {}
+        if spec.get("loops") is not None:
+            return [np.asarray(lp, np.float64) for lp in spec["loops"]]
+        return [lp.detach().cpu().double().numpy() for lp in self.current.loops]
+
+    def summary(self, metrics: dict[str, Any]) -> str | None:
+        """One sentence on the surface found (3D): its area (polished, extrapolated, with its estimated error, else
+        the plain mesh's), the extraction-free mass bound and its topology, in the run's reported units."""
+        if self.dim != 3 or metrics.get("mesh_area") is None:
+            return None
+        m = metrics
+        found = [f"extracted mesh {m['mesh_area']:.5g}"]
+        if m.get("mesh_area_polished") is not None:
+            found.insert(0, f"polished mesh {m['mesh_area_polished']:.7g}")
+        if m.get("mesh_area_extrapolated") is not None:
+            found.insert(0, f"{m['mesh_area_extrapolated']:.7g} ± {m['mesh_area_extrapolated_error']:.1g} for Γ's "
+                            "polyline")
+        if m.get("mesh_area_smooth_curve") is not None:
+            area = (f"minimal area {m['mesh_area_smooth_curve']:.7g} ± {m['mesh_area_smooth_curve_error']:.1g} for the "
+                    f"smooth curve Γ samples ({', '.join(found)})")
+        else:
+            area = f"area {found[0]} ({', '.join(found[1:])})" if len(found) > 1 else f"area of the {found[0]}"
+        bound = (f", mass bound {metrics['mass_area']:.4g} ± {metrics['mass_area_stderr']:.1g}"
+                 if metrics.get("mass_area") is not None else "")
+        surface = f"; the surface is {metrics['surface']}" if metrics.get("surface") else ""
+        return f"{self.hparams.boundary.get('name') or 'Minimal surface'}: {area}{bound}{surface}."
 
     def mesh_options(self) -> dict[str, Any]:
         """Keyword arguments of ``extract_surface`` for the final mesh (reconstruction adds ``bounds``)."""

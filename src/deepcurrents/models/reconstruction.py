@@ -131,6 +131,8 @@ class ReconstructionModule(CurrentModule):
             mesher's level s within ±ε/4 of the target, by δ/4 on each side.
     """
 
+    polishes_mesh = False  # the mesh follows a target, not least area
+
     def __init__(self, boundary: dict, net: dict, optim: dict, rff: dict | None = None,
                  evaluation: dict | None = None, target: dict | None = None, surface_weight: float = 1.0,
                  surface_margin: float = 0.01, grid_encoding: dict | None = None, mass_weight: float = 0.0,

@@ -26,7 +26,7 @@ import torch
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from deepcurrents.geometry.polyline import closed_loop_segments, project_to_segments
+from deepcurrents.geometry.polyline import closed_loop_segments, project_to_segments, segment_distance
 from deepcurrents.geometry.topology import border_loops
 
 log = logging.getLogger(__name__)
@@ -89,8 +89,7 @@ def cut_tube(vertices: np.ndarray, faces: np.ndarray, loops: list[np.ndarray], t
     """The part of a mesh farther than ``tube`` from Γ (loops (M_i, 3)), clipped exactly on the tube's
     surface (``clip_by_field`` of the distance to Γ minus τ). → (vertices (V', 3), faces (F', 3))."""
     starts, ends, _ = closed_loop_segments(loops)
-    dist = project_to_segments(torch.as_tensor(vertices), torch.as_tensor(starts), torch.as_tensor(ends)).distance
-    return clip_by_field(vertices, faces, dist.numpy() - tube)
+    return clip_by_field(vertices, faces, segment_distance(vertices, starts, ends) - tube)
 
 
 def _densify_loop(loop: np.ndarray, spacing: float) -> np.ndarray:

@@ -58,11 +58,12 @@ class MeshingResult:
 
 
 def mesh_method(options: dict, default: str) -> dict:
-    """``options`` with ``method`` "auto" (or unset) replaced by the model kind's ``default``: "phase" for
+    """``options`` (``evaluation.mesh``, less its ``polish``) as ``extract_surface``'s arguments, ``method`` "auto"
+    (or unset) replaced by the model kind's ``default``: "phase" for
     minimal currents (ω ≈ 0 off the surface, so the phase is constant there), "level_set" for currents
     trained under a reconstruction metric (ω along the target's normal is free off the surface, which
     can turn the phase over twice: doubled sheets)."""
-    options = dict(options)
+    options = {k: v for k, v in dict(options).items() if k != "polish"}  # the mesh flow after it (meshing.polish)
     if options.get("method") in (None, "auto"):
         options["method"] = default
     return options
