@@ -37,7 +37,7 @@ RUN_RECIPE ?= recipe=sharp
 run: setup
 	$(BIN)/python train.py experiment=minimal_trefoil preset=cpu $(RUN_RECIPE) trainer.max_steps=$(RUN_STEPS) \
 		hydra.run.dir=$(RUN_DIR)
-	@echo "Results in $(RUN_DIR): metrics.json, mesh.ply, mesh.png, render.png, checkpoints/last.ckpt"
+	@echo "Results in $(RUN_DIR): metrics.json, mesh.ply, mesh_polished.ply, mesh.png, render.png, checkpoints/last.ckpt"
 
 # every test, on one pytest-xdist worker per core (at most TEST_WORKERS_MAX: each worker holds torch and Lightning,
 # ~1 GB); `make test TEST_WORKERS=0` runs them in one process. `make test-fast` skips the ones marked slow.

@@ -90,6 +90,8 @@ def test_catenoid_from_a_cylinder_reaches_the_exact_area_as_its_rings_are_refine
         assert result.areas == sorted(result.areas, reverse=True) and result.extrapolated_error < 1e-5 * exact
         assert boundary_error(result.mesh, loops) < 1e-9
         shortfall[n] = 1 - result.extrapolated / exact
+        # extrapolated in the rings' sampling too (the polygon of every other vertex): the circles' catenoid
+        assert result.curve_extrapolated == pytest.approx(exact, rel=1e-5)
     # what is left is the n-gons' own shortfall from the circles, ∝ 1/n²: a quarter at twice the vertices
     assert 0 < shortfall[480] < shortfall[240] < 1e-4
     assert shortfall[240] / shortfall[480] == pytest.approx(4.0, rel=0.15)
@@ -156,3 +158,16 @@ def test_surface_topology_of_known_surfaces(genus, border):
     topo = surface_topology(faces)
     assert (topo.genus, topo.border_loops, topo.components, topo.manifold) == (genus, border, 1, True)
     assert topo.euler_characteristic == 2 - 2 * genus - border
+
+
+def test_a_stable_catenoid_beyond_the_switch_keeps_its_topology():
+    # h/R = 0.56: two disks (2πR²) have 5 % less area, but the catenoid is a stable minimum of the annulus: the flow
+    # keeps the regime it is given (the current decides it), and reaches that catenoid's area
+    radius, half = 0.5, 0.28
+    bottom, top = ring(radius, -half, 240), ring(radius, half, 240)
+    verts, faces = tube_mesh(bottom, top, 10)
+    result = polish_minimal_surface(trimesh.Trimesh(verts, faces, process=False), [top[::-1].copy(), bottom], FAST)
+    assert result.stopped is None and result.topology.describe().startswith("an annulus")
+    assert surface_topology(result.mesh.faces) == result.topology
+    assert result.curve_extrapolated == pytest.approx(catenoid_area(radius, half), rel=2e-5)
+    assert result.curve_extrapolated > 2 * math.pi * radius**2

@@ -344,7 +344,7 @@ class Polish:
                             boolean)
     edge_length: float = setting(0.025, "level 1's edge length, a share of Γ's largest extent", between(1e-4, 0.5))
     levels: int = setting(3, "meshes of edges h, h/2, …: two or more give the Richardson extrapolation", integer())
-    tolerance: float = setting(1.0e-7, "a level ends when its area changes by less than this share a step",
+    tolerance: float = setting(1.0e-6, "a level ends when its area changes by less than this share a step",
                                at_least(strict=True))
     max_iterations: int = setting(100, "most steps of the flow per level", integer())
     remesh_iterations: int = setting(10, "iterations of the isotropic remesher before level 1", integer())

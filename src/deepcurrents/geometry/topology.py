@@ -111,8 +111,7 @@ class SurfaceTopology:
         names = {(1, 0, 1): "a disk", (1, 0, 2): "an annulus", (2, 0, 2): "two disks"}
         name = names.get((self.components, self.genus, self.border_loops))
         if name is None:
-            pieces = f"{self.components} pieces" if self.components != 1 else "one piece"
-            name = f"a surface in {pieces}"
+            name = "a connected surface" if self.components == 1 else f"a surface in {self.components} pieces"
         return f"{name} ({facts})"
 
 

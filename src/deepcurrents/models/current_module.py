@@ -250,10 +250,10 @@ class CurrentModule(DeepCurrentsModule):
         if m.get("mesh_area_polished") is not None:
             found.insert(0, f"polished mesh {m['mesh_area_polished']:.7g}")
         if m.get("mesh_area_extrapolated") is not None:
-            found.insert(0, f"{m['mesh_area_extrapolated']:.7g} ± {m['mesh_area_extrapolated_error']:.1g} for Γ's "
+            found.insert(0, f"{m['mesh_area_extrapolated']:.7g} ± {m['mesh_area_extrapolated_error']:.1e} for Γ's "
                             "polyline")
         if m.get("mesh_area_smooth_curve") is not None:
-            area = (f"minimal area {m['mesh_area_smooth_curve']:.7g} ± {m['mesh_area_smooth_curve_error']:.1g} for the "
+            area = (f"minimal area {m['mesh_area_smooth_curve']:.7g} ± {m['mesh_area_smooth_curve_error']:.1e} for the "
                     f"smooth curve Γ samples ({', '.join(found)})")
         else:
             area = f"area {found[0]} ({', '.join(found[1:])})" if len(found) > 1 else f"area of the {found[0]}"

@@ -53,7 +53,7 @@ class PolishSettings:
     enabled: bool = True
     edge_length: float = 0.025
     levels: int = 3
-    tolerance: float = 1e-7
+    tolerance: float = 1e-6
     max_iterations: int = 100
     remesh_iterations: int = 10
     curve_extrapolation: bool = True
@@ -75,6 +75,7 @@ class PolishResult:
     holes_filled: int = 0
     iterations: list[int] = field(default_factory=list)
     seconds: float = 0.0
+    level_seconds: list[float] = field(default_factory=list)  # seconds from the start to each level's end
     curve_extrapolated: float | None = None
     curve_extrapolated_error: float | None = None
     last_areas: list[float] = field(default_factory=list)
@@ -159,6 +160,50 @@ def fill_holes_off_curve(vertices: np.ndarray, faces: np.ndarray, loops: list[np
     return np.concatenate(new_vertices), np.concatenate(new_faces), filled
 
 
+@dataclass
+class LevelOne:
+    """Step 1 and the remeshing of step 2 (module docstring): the mesh the flow starts from, its edge length h, the
+    surface's topology, the holes filled, and why there is none (``stopped``)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    edge_length: float
+    topology: SurfaceTopology | None
+    holes_filled: int = 0
+    stopped: str | None = None
+
+
+def level_one_mesh(mesh: trimesh.Trimesh, loops: list[np.ndarray], settings: PolishSettings) -> LevelOne:
+    """The extracted mesh with its holes off Γ filled, its border snapped onto Γ and its interior remeshed to edges
+    of ``settings.edge_length`` × Γ's largest extent (the start of the flow; also Surface Evolver's in
+    ``benchmarks/polish_vs_evolver.py``). mesh: border on Γ; loops (M_i, 3) float64 in the mesh's units."""
+    import gpytoolbox
+
+    vertices = np.array(mesh.vertices, dtype=np.float64)
+    faces = np.array(mesh.faces, dtype=np.int64)
+    if len(faces) == 0:
+        return LevelOne(vertices, faces, 0.0, None, stopped="the mesh is empty")
+    points = np.concatenate(loops)
+    extent = float((points.max(0) - points.min(0)).max())
+    vertices, faces, filled = fill_holes_off_curve(vertices, faces, loops, ON_CURVE * extent)
+    if filled:
+        log.info("Polish: filled %d hole(s) of the mesh whose border is not on Γ.", filled)
+    topology = surface_topology(faces)
+    h = settings.edge_length * extent
+    if not topology.manifold:
+        return LevelOne(vertices, faces, h, topology, filled, "the extracted mesh is not an oriented manifold")
+    starts, ends, _ = closed_loop_segments(loops)
+    border = np.unique(border_edges(faces))
+    vertices[border] = closest_on_segments(vertices[border], starts, ends)[1]
+    vertices, faces = gpytoolbox.remesh_botsch(vertices, faces, settings.remesh_iterations, h, True)
+    faces = np.asarray(faces, dtype=np.int64)
+    stopped = None
+    if (remeshed := surface_topology(faces)) != topology:
+        stopped = (f"the remesher changed the surface from {topology.describe()} to {remeshed.describe()} "
+                   "(edge_length too coarse for a thin neck?)")
+    return LevelOne(vertices, faces, h, topology, filled, stopped)
+
+
 def polish_minimal_surface(mesh: trimesh.Trimesh, loops: list[np.ndarray], settings: PolishSettings | None = None
                            ) -> PolishResult:
     """The polished mesh of a minimal surface spanning Γ (see the module docstring).
@@ -167,54 +212,32 @@ def polish_minimal_surface(mesh: trimesh.Trimesh, loops: list[np.ndarray], setti
         mesh: the extracted mesh, its border on Γ (``extract_surface``), any units.
         loops: Γ as (M_i, 3) float64 polylines in the mesh's units.
         settings: the level-1 edge length as a share of Γ's largest extent, the number of levels, the flow's
-            relative area tolerance and step limit per level, and the remesher's iterations.
+            relative area tolerance and step limit per level, the remesher's iterations, and whether to
+            extrapolate in Γ's sampling too.
     """
-    import gpytoolbox
-
     settings = settings or PolishSettings()
     began = time.perf_counter()
     result = PolishResult(mesh=mesh)
-    vertices = np.array(mesh.vertices, dtype=np.float64)
-    faces = np.array(mesh.faces, dtype=np.int64)
-    if len(faces) == 0:
-        result.stopped = "the mesh is empty"
-        return result
-    points = np.concatenate(loops)
-    extent = float((points.max(0) - points.min(0)).max())
-    vertices, faces, result.holes_filled = fill_holes_off_curve(vertices, faces, loops, ON_CURVE * extent)
-    if result.holes_filled:
-        log.info("Polish: filled %d hole(s) of the mesh whose border is not on Γ.", result.holes_filled)
-    result.topology = topology = surface_topology(faces)
-    if not topology.manifold:
-        result.stopped = "the extracted mesh is not an oriented manifold"
+    start = level_one_mesh(mesh, loops, settings)
+    result.topology, result.holes_filled, result.stopped = start.topology, start.holes_filled, start.stopped
+    if start.stopped:
         return _finish(result, began)
-    starts, ends, _ = closed_loop_segments(loops)
-    border = np.unique(border_edges(faces))
-    vertices[border] = closest_on_segments(vertices[border], starts, ends)[1]
-    h = settings.edge_length * extent
-    vertices, faces = gpytoolbox.remesh_botsch(vertices, faces, settings.remesh_iterations, h, True)
-    faces = np.asarray(faces, dtype=np.int64)
-    if surface_topology(faces) != topology:
-        result.stopped = (f"the remesher changed the surface from {topology.describe()} to "
-                          f"{surface_topology(faces).describe()} (edge_length too coarse for a thin neck?)")
-        return _finish(result, began)
-    level_one = (vertices, faces)
-    vertices, faces, why = _flow(vertices, faces, settings, h, result)
+    vertices, faces, why = _flow(start.vertices, start.faces, settings, start.edge_length, result, began)
     if why:
         result.stopped = why
         return _finish(result, began)
     result.mesh = trimesh.Trimesh(vertices, faces, process=False)
     result.extrapolated, result.extrapolated_error = richardson(result.areas)
     if settings.curve_extrapolation and all(len(lp) >= 8 for lp in loops):
-        _extrapolate_in_the_curve(result, level_one, loops, settings, h)
+        _extrapolate_in_the_curve(result, (start.vertices, start.faces), loops, settings, start.edge_length)
     return _finish(result, began)
 
 
 def _flow(vertices: np.ndarray, faces: np.ndarray, settings: PolishSettings, h: float, result: PolishResult,
-          record: bool = True) -> tuple[np.ndarray, np.ndarray, str | None]:
-    """Steps 2–3 of the module docstring from a level-1 mesh of edges ``h``: the flow on each level, its areas,
-    edge lengths and steps appended to ``result`` (when ``record``). → (the finest level's vertices, faces, why the
-    flow stopped or None)."""
+          began: float | None = None) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """Steps 2–3 of the module docstring from a level-1 mesh of edges ``h``: the flow on each level, its areas in
+    ``result.last_areas`` and, with ``began`` (the polish's start, ``time.perf_counter``), appended to ``result``'s
+    areas, edge lengths, steps and seconds. → (the finest level's vertices, faces, why the flow stopped or None)."""
     import igl
 
     areas_out = []
@@ -228,10 +251,11 @@ def _flow(vertices: np.ndarray, faces: np.ndarray, settings: PolishSettings, h: 
         if why:
             return vertices, faces, f"at level {level + 1} (edges {h:.3g}) {why}"
         areas_out.append(areas[-1])
-        if record:
+        if began is not None:
             result.areas.append(areas[-1])
             result.edge_lengths.append(h)
             result.iterations.append(len(areas) - 1)
+            result.level_seconds.append(time.perf_counter() - began)
     result.last_areas = areas_out
     return vertices, faces, None
 
@@ -275,7 +299,7 @@ def _extrapolate_in_the_curve(result: PolishResult, level_one: tuple[np.ndarray,
         on = border[which == i]
         vertices[on] = every_other_vertex(vertices[on], loop)
     coarse = PolishResult(mesh=result.mesh)
-    _, _, why = _flow(vertices, faces, settings, h, coarse, record=False)
+    _, _, why = _flow(vertices, faces, settings, h, coarse)
     if why or len(coarse.last_areas) < 2:
         return
     coarse_value, coarse_error = richardson(coarse.last_areas)
