@@ -39,8 +39,9 @@ QUIET_CPU = [
 ]
 # A network and batch small enough for a training step in milliseconds.
 TINY_NET = ["data.num_samples=64", "model.rff.num_frequencies=16", "model.net.width=16", "model.net.depth=2"]
-# Cheap final evaluation: a coarse mesh, few Monte Carlo samples for the mass bound and the UCD.
-TINY_EVAL = ["evaluation.mass_samples=4096", "evaluation.ucd_samples=4000", "evaluation.mesh.resolution=24"]
+# Cheap final evaluation: a coarse mesh, few Monte Carlo samples for the mass bound and the UCD, a coarse polish.
+TINY_EVAL = ["evaluation.mass_samples=4096", "evaluation.ucd_samples=4000", "evaluation.mesh.resolution=24",
+             "evaluation.mesh.polish.edge_length=0.1", "evaluation.mesh.polish.levels=2"]
 
 
 @contextmanager

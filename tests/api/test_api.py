@@ -104,6 +104,23 @@ def test_fields_meshes_and_numbers_are_in_the_inputs_units(api_run):
     assert api_run.mass_bound(units="model") == pytest.approx(api_run.metrics["mass_area"] / scale**2, rel=1e-9)
 
 
+def test_the_polished_mesh_is_the_runs_in_the_inputs_units(api_run):
+    metrics = api_run.metrics
+    polished = api_run.polished()
+    assert polished.stopped is None and metrics["polish_stopped"] is None
+    assert polished.extrapolated == pytest.approx(metrics["mesh_area_extrapolated"], rel=1e-9)
+    assert polished.curve_extrapolated == pytest.approx(metrics["mesh_area_smooth_curve"], rel=1e-9)
+    assert polished.topology.describe() == metrics["surface"]
+    saved = trimesh.load(api_run.run_dir / "mesh_polished.ply", process=False)
+    np.testing.assert_allclose(polished.mesh.vertices, saved.vertices, atol=1e-9)
+    assert boundary_error(polished.mesh, [wavy_ring()]) < 1e-6 * api_run.scale
+    # the flow lowers the area below the extracted mesh's (the same units: the curve's)
+    assert polished.area < metrics["mesh_area"] and polished.area == pytest.approx(metrics["mesh_area_polished"])
+    assert len(api_run.polished(levels=3).areas) == 3
+    with pytest.raises(dc.UserInputError, match="polished\\(\\) got level: its settings are"):
+        api_run.polished(level=2)
+
+
 def test_render_and_save(api_run, tmp_path):
     image = api_run.render(size=32, samples=8)
     assert image.shape == (32, 32, 3) and image.dtype == np.uint8 and image.min() < 250  # something drawn

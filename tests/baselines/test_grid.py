@@ -275,7 +275,8 @@ def test_fig4_suite_writes_its_figure_and_table(tmp_path):
     for name in ("fig4.png", "fig4.csv", "fig4.md", "suite.json"):
         assert (tmp_path / name).is_file(), name
     rows = (tmp_path / "fig4.csv").read_text().splitlines()
-    assert rows[0] == "method,curve,parameters,mass_area,mesh_area,boundary_error,seconds"
+    assert rows[0] == ("method,curve,parameters,mass_area,mesh_area,mesh_area_polished,mesh_area_extrapolated,"
+                       "mesh_area_smooth_curve,surface,boundary_error,seconds")
     table = {tuple(r.split(",")[:2]): r.split(",") for r in rows[1:]}
     assert set(table) == {("grid", "hopf"), ("network", "hopf")}
     # the grid is sized to the network: N = round(∛(weights + frozen frequencies)) = 10 here

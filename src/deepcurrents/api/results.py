@@ -24,6 +24,7 @@ from deepcurrents.api.inputs import curve_loops
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.device import device_of
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
+from deepcurrents.eval.meshing.polish import PolishResult, PolishSettings, polish_minimal_surface
 from deepcurrents.eval.metrics import mass_estimate, mass_estimate_settings, mass_to_area
 from deepcurrents.eval.plots import figure_pixels
 from deepcurrents.eval.render import (
@@ -173,6 +174,22 @@ class Result:
         self._check_units(units)
         mesh = self._surface(resolution).mesh
         return input_mesh(mesh, self._frame) if units == "input" and self._frame is not None else mesh.copy()
+
+    def polished(self, resolution: int | None = None, **settings: Any) -> PolishResult:
+        """The minimal surface's mesh finished by the area flow with its border on Γ (``eval.meshing.polish``), in
+        the input's coordinates: ``.mesh`` (the finest level), ``.areas`` per level, ``.extrapolated`` ± its
+        ``.extrapolated_error`` (Γ's polyline), ``.curve_extrapolated`` ± its error (the smooth curve Γ samples),
+        ``.topology``; ``.stopped`` says why not where it could not. ``settings``: ``PolishSettings``' fields
+        (default the run's ``evaluation.mesh.polish``, e.g. ``levels=2``)."""
+        if not getattr(self.module, "polishes_mesh", False) or self._mesher is not None:
+            raise UserInputError(f"{self.name} is not a minimal surface: only those are polished.")
+        options = dict(dict(run_evaluation(self.module).get("mesh") or {}).get("polish") or {})
+        options.pop("enabled", None)
+        fields = set(PolishSettings.__dataclass_fields__) - {"enabled"}
+        unknown = sorted(set(settings) - fields)
+        if unknown:
+            raise UserInputError(f"polished() got {', '.join(unknown)}: its settings are {', '.join(sorted(fields))}.")
+        return polish_minimal_surface(self.mesh(resolution), self.boundary, PolishSettings(**{**options, **settings}))
 
     def curves(self, resolution: int | None = None, *, units: Units = "input") -> list[np.ndarray]:
         """A 2D current's curve: its polylines, each (K, 2)."""

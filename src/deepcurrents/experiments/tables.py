@@ -20,10 +20,11 @@ def write_table(out_dir: Path, results: list[dict[str, Any]], cfg: DictConfig | 
         writer.writeheader()
         writer.writerows(rows)
 
-    def fmt(v):
-        return f"{v:.4g}" if isinstance(v, float) else ("" if v is None else str(v))
+    def fmt(v, column):  # polished areas carry their digits (eval.meshing.polish), the rest four
+        digits = 7 if column.startswith(("mesh_area_polished", "mesh_area_extrapolated", "mesh_area_smooth")) else 4
+        return f"{v:.{digits}g}" if isinstance(v, float) else ("" if v is None else str(v))
 
     lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    lines += ["| " + " | ".join(fmt(row.get(c)) for c in columns) + " |" for row in rows]
+    lines += ["| " + " | ".join(fmt(row.get(c), c) for c in columns) + " |" for row in rows]
     (out_dir / f"{name}.md").write_text("\n".join(lines) + "\n")
     return rows
