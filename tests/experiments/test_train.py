@@ -188,6 +188,40 @@ def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, mo
         train(cfg, out_dir=tmp_path / "fresh")
 
 
+@pytest.mark.parametrize("every", [2, 10])
+def test_a_deferred_finiteness_check_names_the_step_and_keeps_the_last_good_checkpoint(tmp_path, monkeypatch, every):
+    # read every 2 steps (step 4's NaN is read at step 5) or every 10 (read before the checkpoint of step 6 is
+    # written, which is then not written): the same sentence and the same last good checkpoint as reading each step
+    from deepcurrents.errors import NonFiniteLossError
+    from deepcurrents.models import current_module
+
+    original = current_module.current_loss
+    calls = {"n": 0}
+
+    def poisoned(omega, metric=None, weight=None):
+        calls["n"] += 1
+        loss = original(omega, metric, weight)
+        return loss * float("nan") if calls["n"] > 4 else loss
+
+    monkeypatch.setattr(current_module, "current_loss", poisoned)
+    cfg = compose_cfg(["experiment=minimal_trefoil", *TINY, f"model.optim.check_every={every}"])
+    with pytest.raises(NonFiniteLossError, match=r"^The loss became nan at step 4; training stopped, and the last "
+                                                 r"good checkpoint is kept in .*checkpoints"):
+        train(cfg, out_dir=tmp_path)
+    ckpt = torch.load(tmp_path / "checkpoints/last.ckpt", weights_only=False)
+    assert ckpt["global_step"] == 3
+    assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())
+
+
+def test_a_deferred_check_changes_no_number_of_a_finite_run(tmp_path):
+    runs = {}
+    for every in (1, 7):
+        cfg = compose_cfg(["experiment=minimal_trefoil", *TINY, f"model.optim.check_every={every}"])
+        train(cfg, out_dir=tmp_path / str(every))
+        runs[every] = torch.load(tmp_path / str(every) / "checkpoints/last.ckpt", weights_only=False)["state_dict"]
+    assert all(torch.equal(runs[1][k], runs[7][k]) for k in runs[1])
+
+
 def test_datamodule_streams_differ_per_rank_and_resume_step():
     cfg = compose_cfg(["experiment=minimal_trefoil", *TINY])
     datamodule, _ = build(cfg)

@@ -456,6 +456,8 @@ class Optim:
     min_factor: float = setting(0.0, "cosine: the rate ends at min_factor × lr", unit_factor)
     fused: bool = setting(False, "PyTorch's fused Adam kernel", boolean)
     betas: list | None = setting(None, "Adam's betas (null: PyTorch's)", adam_betas)
+    check_every: int | None = setting(None, "steps between reads of the loss's finiteness (null: 1 on a CPU, 32 on "
+                                      "a GPU, where a read each step stalls the device)", integer())
 
 
 @dataclass

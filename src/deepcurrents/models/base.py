@@ -74,6 +74,10 @@ class DeepCurrentsModule(L.LightningModule):
         self.run_config: dict | None = None  # set by the entry point; saved in checkpoints
         self.train_seconds = 0.0  # training time of the fit loops that ended (this run and those it resumed)
         self._train_start: float | None = None
+        # the deferred finiteness check (check_finite): first bad step (−1: none) and its loss, on the device
+        self._first_bad: torch.Tensor | None = None
+        self._bad_value: torch.Tensor | None = None
+        self._bad_hint = "try a lower model.optim.lr"
 
     def configure_optimizers(self):
         optim = self.hparams.optim
@@ -112,10 +116,40 @@ class DeepCurrentsModule(L.LightningModule):
             grid_shape(np.asarray(bounds, dtype=np.float64), int(resolution), self.MESH_RESOLUTION_KEY)
 
     def check_finite(self, loss: torch.Tensor | float, hint: str = "try a lower model.optim.lr") -> None:
-        value = float(loss.detach()) if isinstance(loss, torch.Tensor) else float(loss)
+        """Stops training with one sentence when the loss is NaN or infinite. Every ``model.optim.check_every``
+        steps (null: 1 on a CPU; 32 on a GPU, where reading a value on the host each step stalls the device) the
+        loss is read; between reads the first bad step and its value are kept on the device, and are read before
+        any checkpoint is written (``on_save_checkpoint``) and when training ends, so no checkpoint holds the
+        weights of a step after a bad loss."""
+        if not isinstance(loss, torch.Tensor) or self.check_every(loss.device) <= 1:
+            self._raise_if_bad(float(loss.detach()) if isinstance(loss, torch.Tensor) else float(loss),
+                               self.global_step, hint)
+            return
+        loss = loss.detach()
+        if self._first_bad is None:
+            self._first_bad = torch.full((), -1, dtype=torch.long, device=loss.device)
+            self._bad_value = torch.zeros((), dtype=loss.dtype, device=loss.device)
+        new = (~torch.isfinite(loss)) & (self._first_bad < 0)
+        self._first_bad = torch.where(new, torch.full_like(self._first_bad, self.global_step), self._first_bad)
+        self._bad_value = torch.where(new, loss, self._bad_value)
+        self._bad_hint = hint
+        if (self.global_step + 1) % self.check_every(loss.device) == 0:
+            self.read_finite_check()
+
+    def check_every(self, device: torch.device) -> int:
+        """``model.optim.check_every``, or its default for ``device``: 1 on a CPU, 32 on an accelerator."""
+        every = ((getattr(self, "hparams", None) or {}).get("optim") or {}).get("check_every")
+        return int(every) if every is not None else (1 if device.type == "cpu" else 32)
+
+    def read_finite_check(self) -> None:
+        """Raises the deferred check's sentence if some step since the start had a bad loss (one host read)."""
+        if self._first_bad is not None and (step := int(self._first_bad)) >= 0:
+            self._raise_if_bad(float(self._bad_value), step, self._bad_hint)
+
+    def _raise_if_bad(self, value: float, step: int, hint: str) -> None:
         if not math.isfinite(value):
             # self._trainer: None outside a fit (the property would raise then)
-            raise NonFiniteLossError(f"The loss became {value} at step {self.global_step}; training stopped, and "
+            raise NonFiniteLossError(f"The loss became {value} at step {step}; training stopped, and "
                                      f"{kept_checkpoint(self._trainer)} ({hint}).")
 
     # ------------------------------------------------------------------------------- training clock
@@ -136,6 +170,7 @@ class DeepCurrentsModule(L.LightningModule):
             module.set_progress(trainer_progress(self.trainer, self.global_step))
 
     def on_train_end(self) -> None:
+        self.read_finite_check()  # a bad loss in the last steps since the last read
         self.train_seconds = self.elapsed_train_seconds()
         self._train_start = None  # a checkpoint written after training must not count the time since
 
@@ -154,6 +189,7 @@ class DeepCurrentsModule(L.LightningModule):
 
     # ----------------------------------------------------------------------------------- checkpoints
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        self.read_finite_check()  # before the file is written: a checkpoint never holds weights after a bad step
         checkpoint[CHECKPOINT_KEY] = {
             "module": f"{type(self).__module__}.{type(self).__qualname__}",
             "config": self.run_config,
