@@ -200,7 +200,7 @@ def _face_components(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return vertex_label[faces[:, 0]]
 
 
-def _triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Areas (F,) of triangles faces (F, 3) of vertices (V, 3)."""
     tri = vertices[faces]
     return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
@@ -223,7 +223,7 @@ def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.nda
     """
     borders = border_loops(faces)
     label = _face_components(faces, len(vertices)) if len(faces) else np.zeros(0, dtype=int)
-    piece_area = np.bincount(label, weights=_triangle_areas(vertices, faces)) if len(faces) else np.zeros(0)
+    piece_area = np.bincount(label, weights=triangle_areas(vertices, faces)) if len(faces) else np.zeros(0)
     vertex_piece = np.full(len(vertices), -1)
     vertex_piece[faces.reshape(-1)] = np.repeat(label, 3)
     chosen: list[tuple[np.ndarray, np.ndarray]] = []  # (border, densified Γ loop)

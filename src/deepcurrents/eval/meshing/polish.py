@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
+from deepcurrents.eval.meshing.border import triangle_areas
 from deepcurrents.geometry.polyline import closed_loop_segments, closest_on_segments
 from deepcurrents.geometry.topology import SurfaceTopology, border_edges, border_loops, surface_topology
 
@@ -91,12 +92,6 @@ class PolishResult:
         if self.extrapolated is None or self.stopped is not None:
             return None
         return abs(self.areas[-1] - self.extrapolated)
-
-
-def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Areas (F,) of the triangles faces (F, 3) of vertices (V, 3)."""
-    tri = vertices[faces]
-    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
 
 
 def pinkall_polthier(vertices: np.ndarray, faces: np.ndarray, fixed: np.ndarray, tolerance: float = 1e-8,
