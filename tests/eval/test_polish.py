@@ -171,3 +171,17 @@ def test_a_stable_catenoid_beyond_the_switch_keeps_its_topology():
     assert surface_topology(result.mesh.faces) == result.topology
     assert result.curve_extrapolated == pytest.approx(catenoid_area(radius, half), rel=2e-5)
     assert result.curve_extrapolated > 2 * math.pi * radius**2
+
+
+def test_a_remesher_failure_keeps_the_extracted_mesh(monkeypatch):
+    import gpytoolbox
+
+    def refuse(*args, **kwargs):
+        raise RuntimeError("non-manifold input")
+
+    monkeypatch.setattr(gpytoolbox, "remesh_botsch", refuse)
+    loop = ring(0.5, 0.0, 32)
+    mesh = trimesh.Trimesh(*disk_mesh(loop, 3, bump=0.1), process=False)
+    result = polish_minimal_surface(mesh, [loop], FAST)
+    assert result.stopped == "the remesher failed (non-manifold input)" and result.mesh is mesh
+    assert result.extrapolated is None and result.area == mesh.area

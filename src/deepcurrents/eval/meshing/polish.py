@@ -190,7 +190,10 @@ def level_one_mesh(mesh: trimesh.Trimesh, loops: list[np.ndarray], settings: Pol
     starts, ends, _ = closed_loop_segments(loops)
     border = np.unique(border_edges(faces))
     vertices[border] = closest_on_segments(vertices[border], starts, ends)[1]
-    vertices, faces = gpytoolbox.remesh_botsch(vertices, faces, settings.remesh_iterations, h, True)
+    try:
+        vertices, faces = gpytoolbox.remesh_botsch(vertices, faces, settings.remesh_iterations, h, True)
+    except (RuntimeError, ValueError) as err:  # the library's refusal of a mesh it cannot remesh
+        return LevelOne(vertices, faces, h, topology, filled, f"the remesher failed ({err})")
     faces = np.asarray(faces, dtype=np.int64)
     stopped = None
     if (remeshed := surface_topology(faces)) != topology:
