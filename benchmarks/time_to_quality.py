@@ -58,7 +58,7 @@ from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.errors import UserInputError
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_surface, mesh_method
-from deepcurrents.eval.meshing.polish import PolishSettings, polish_minimal_surface
+from deepcurrents.eval.meshing.polish import polish_minimal_surface, polish_settings
 from deepcurrents.eval.metrics import mass_to_area
 from deepcurrents.experiments.config import trainer_overrides, validate_config
 from deepcurrents.experiments.runner import build, instantiate
@@ -546,9 +546,9 @@ def score(module, cfg, copies, exact: float, mass_samples: int, mesh: bool, mesh
             areas.update(mesh_area=float(result.mesh.area), mesh_seconds=time.perf_counter() - t,
                          mass_area_sharpened=sharp, mass_area_sharpened_stderr=sharp_err)
             # the same mesh finished by the area flow (eval.meshing.polish), as a run's mesh_polished.ply
-            polish = dict(dict(cfg.evaluation.mesh).get("polish") or {})
-            if polish.pop("enabled", True):
-                polished = polish_minimal_surface(result.mesh, module.boundary_loops(), PolishSettings(**polish))
+            polish = polish_settings(dict(cfg.evaluation.mesh))
+            if polish is not None:
+                polished = polish_minimal_surface(result.mesh, module.boundary_loops(), polish)
                 if polished.stopped is None:
                     areas.update(mesh_area_polished=polished.area, mesh_area_extrapolated=polished.extrapolated,
                                  mesh_area_smooth_curve=polished.curve_extrapolated,

@@ -271,3 +271,27 @@ def tiny_overrides(path: Path, out: Path, steps: int) -> list[str]:
         "callbacks.media=null", "model.rff.sigma=2", "model.surface_margin=0.01",
         "model.optim.schedule=step", "model.latent_lr_factor=1",
     ]
+
+
+def ring(radius, z, n, reverse=False):
+    """A regular n-gon of ``radius`` in the plane at height z, counter-clockwise (``reverse``: clockwise). → (n, 3)."""
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    t = -t if reverse else t
+    return np.stack([radius * np.cos(t), radius * np.sin(t), np.full(n, z)], 1)
+
+
+def disk_mesh(loop, rows, bump=0.0):
+    """A fan-like disk spanning one loop: rings shrinking to its centroid, lifted by ``bump``·(1 − r²)."""
+    centre = loop.mean(0)
+    n = len(loop)
+    rings = [centre + s * (loop - centre) for s in np.linspace(1, 0, rows + 1)[:-1]]
+    verts = np.concatenate(rings + [centre[None]])
+    s = np.concatenate([np.full(n, v) for v in np.linspace(1, 0, rows + 1)[:-1]] + [[0.0]])
+    verts[:, 2] += bump * (1 - s**2)
+    faces = []
+    for r in range(rows - 1):
+        i, j = r * n + np.arange(n), (r + 1) * n + np.arange(n)
+        faces += [np.stack([i, np.roll(i, -1), j], 1), np.stack([np.roll(i, -1), np.roll(j, -1), j], 1)]
+    last = (rows - 1) * n + np.arange(n)
+    faces.append(np.stack([last, np.roll(last, -1), np.full(n, rows * n)], 1))
+    return verts, np.concatenate(faces)

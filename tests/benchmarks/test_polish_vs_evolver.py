@@ -8,7 +8,7 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import load_benchmark
+from conftest import disk_mesh, load_benchmark, ring
 
 from deepcurrents.geometry.topology import border_edges
 
@@ -16,18 +16,9 @@ bench = load_benchmark("polish_vs_evolver")
 
 
 def dome(n=24, rows=4, bump=0.2):
-    """A dome of triangles over the regular n-gon of radius 0.5 in z = 0 (rings shrinking to the centre)."""
-    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    loop = np.stack([0.5 * np.cos(t), 0.5 * np.sin(t), np.zeros(n)], 1)
-    scales = np.linspace(1, 0, rows + 1)[:-1]
-    verts = np.concatenate([s * loop + [0, 0, bump * (1 - s * s)] for s in scales] + [[[0, 0, bump]]])
-    faces = []
-    for r in range(rows - 1):
-        i, j = r * n + np.arange(n), (r + 1) * n + np.arange(n)
-        faces += [np.stack([i, np.roll(i, -1), j], 1), np.stack([np.roll(i, -1), np.roll(j, -1), j], 1)]
-    last = (rows - 1) * n + np.arange(n)
-    faces.append(np.stack([last, np.roll(last, -1), np.full(n, rows * n)], 1))
-    return loop, verts, np.concatenate(faces)
+    """A dome of triangles over the regular n-gon of radius 0.5 in z = 0. → (the n-gon, vertices, faces)."""
+    loop = ring(0.5, 0.0, n)
+    return (loop, *disk_mesh(loop, rows, bump))
 
 
 def read_fe(path):

@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from conftest import disk_mesh, ring
 from scipy.optimize import brentq
 
 from deepcurrents.eval.meshing.polish import (
@@ -20,12 +21,6 @@ from deepcurrents.geometry.curves import enneper, enneper_area
 from deepcurrents.geometry.topology import border_edges, surface_topology
 
 
-def ring(radius, z, n, reverse=False):
-    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    t = -t if reverse else t
-    return np.stack([radius * np.cos(t), radius * np.sin(t), np.full(n, z)], 1)
-
-
 def tube_mesh(bottom, top, rows):
     """A strip of triangles between two loops of the same length n (rows − 1 rings between them, linearly)."""
     n = len(bottom)
@@ -36,23 +31,6 @@ def tube_mesh(bottom, top, rows):
         i = r * n + np.arange(n)
         j = (r + 1) * n + np.arange(n)
         faces += [np.stack([i, np.roll(i, -1), j], 1), np.stack([np.roll(i, -1), np.roll(j, -1), j], 1)]
-    return verts, np.concatenate(faces)
-
-
-def disk_mesh(loop, rows, bump=0.0):
-    """A fan-like disk spanning one loop: rings shrinking to its centroid, lifted by ``bump``·(1 − r²)."""
-    centre = loop.mean(0)
-    n = len(loop)
-    rings = [centre + s * (loop - centre) for s in np.linspace(1, 0, rows + 1)[:-1]]
-    verts = np.concatenate(rings + [centre[None]])
-    s = np.concatenate([np.full(n, v) for v in np.linspace(1, 0, rows + 1)[:-1]] + [[0.0]])
-    verts[:, 2] += bump * (1 - s**2)
-    faces = []
-    for r in range(rows - 1):
-        i, j = r * n + np.arange(n), (r + 1) * n + np.arange(n)
-        faces += [np.stack([i, np.roll(i, -1), j], 1), np.stack([np.roll(i, -1), np.roll(j, -1), j], 1)]
-    last = (rows - 1) * n + np.arange(n)
-    faces.append(np.stack([last, np.roll(last, -1), np.full(n, rows * n)], 1))
     return verts, np.concatenate(faces)
 
 

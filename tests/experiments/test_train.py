@@ -163,8 +163,8 @@ def test_cli_prints_one_sentence_without_traceback(tmp_path):
     assert len(err) == 1 and "open.obj" in err[0] and "at least 3" in err[0]
 
 
-def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, monkeypatch):
-    from deepcurrents.errors import NonFiniteLossError
+def poison_the_loss(monkeypatch) -> dict:
+    """The minimal-surface loss made NaN from its fifth call (step 4) on. → the call counter (set "n" to move it)."""
     from deepcurrents.models import current_module
 
     original = current_module.current_loss
@@ -176,6 +176,13 @@ def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, mo
         return loss * float("nan") if calls["n"] > 4 else loss
 
     monkeypatch.setattr(current_module, "current_loss", poisoned)
+    return calls
+
+
+def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, monkeypatch):
+    from deepcurrents.errors import NonFiniteLossError
+
+    calls = poison_the_loss(monkeypatch)
     cfg = compose_cfg(["experiment=minimal_trefoil", *TINY])
     with pytest.raises(NonFiniteLossError, match=r"step 4; training stopped, and the last good checkpoint is kept "
                                                  r"in .*checkpoints \(try a lower model\.optim\.lr\)\.$"):
@@ -193,17 +200,8 @@ def test_a_deferred_finiteness_check_names_the_step_and_keeps_the_last_good_chec
     # read every 2 steps (step 4's NaN is read at step 5) or every 10 (read before the checkpoint of step 6 is
     # written, which is then not written): the same sentence and the same last good checkpoint as reading each step
     from deepcurrents.errors import NonFiniteLossError
-    from deepcurrents.models import current_module
 
-    original = current_module.current_loss
-    calls = {"n": 0}
-
-    def poisoned(omega, metric=None, weight=None):
-        calls["n"] += 1
-        loss = original(omega, metric, weight)
-        return loss * float("nan") if calls["n"] > 4 else loss
-
-    monkeypatch.setattr(current_module, "current_loss", poisoned)
+    poison_the_loss(monkeypatch)
     cfg = compose_cfg(["experiment=minimal_trefoil", *TINY, f"model.optim.check_every={every}"])
     with pytest.raises(NonFiniteLossError, match=r"^The loss became nan at step 4; training stopped, and the last "
                                                  r"good checkpoint is kept in .*checkpoints"):

@@ -24,7 +24,7 @@ from deepcurrents.api.inputs import curve_loops
 from deepcurrents.errors import ConfigError, UserInputError, positive_int
 from deepcurrents.eval.device import device_of
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface
-from deepcurrents.eval.meshing.polish import PolishResult, PolishSettings, polish_minimal_surface
+from deepcurrents.eval.meshing.polish import PolishResult, PolishSettings, polish_minimal_surface, polish_settings
 from deepcurrents.eval.metrics import mass_estimate, mass_estimate_settings, mass_to_area
 from deepcurrents.eval.plots import figure_pixels
 from deepcurrents.eval.render import (
@@ -183,13 +183,13 @@ class Result:
         (default the run's ``evaluation.mesh.polish``, e.g. ``levels=2``)."""
         if not getattr(self.module, "polishes_mesh", False) or self._mesher is not None:
             raise UserInputError(f"{self.name} is not a minimal surface: only those are polished.")
-        options = dict(dict(run_evaluation(self.module).get("mesh") or {}).get("polish") or {})
-        options.pop("enabled", None)
         fields = set(PolishSettings.__dataclass_fields__) - {"enabled"}
         unknown = sorted(set(settings) - fields)
         if unknown:
             raise UserInputError(f"polished() got {', '.join(unknown)}: its settings are {', '.join(sorted(fields))}.")
-        return polish_minimal_surface(self.mesh(resolution), self.boundary, PolishSettings(**{**options, **settings}))
+        # asked for, so polished even where the run's own polish was off
+        options = polish_settings(run_evaluation(self.module).get("mesh"), **settings, enabled=True)
+        return polish_minimal_surface(self.mesh(resolution), self.boundary, options)
 
     def curves(self, resolution: int | None = None, *, units: Units = "input") -> list[np.ndarray]:
         """A 2D current's curve: its polylines, each (K, 2)."""

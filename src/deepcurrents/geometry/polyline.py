@@ -60,17 +60,20 @@ def segment_distance(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -
     return closest_on_segments(points, starts, ends)[0]
 
 
-def closest_on_segments(points: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The nearest point on any segment [starts_i, ends_i] to each point and its distance (libigl's AABB tree,
-    as ``segment_distance``). points (N, 3), starts, ends (S, 3) → (distances (N,), closest points (N, 3))."""
+def closest_on_segments(points: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The nearest point on any segment [starts_i, ends_i] to each point, its distance and that segment's index
+    (libigl's AABB tree, as ``segment_distance``).
+    points (N, 3), starts, ends (S, 3) → (distances (N,), closest points (N, 3), segments (N,) int64)."""
     points = np.ascontiguousarray(points, dtype=np.float64)
     if len(points) == 0:
-        return np.zeros(0), np.zeros((0, 3))
+        return np.zeros(0), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     s = len(starts)
     verts = np.ascontiguousarray(np.concatenate([starts, ends]), dtype=np.float64)
     edges = np.stack([np.arange(s), np.arange(s) + s], 1).astype(np.int64)
-    d2, _, closest = igl.point_mesh_squared_distance(points, verts, edges)
-    return np.sqrt(np.maximum(d2, 0.0)), np.asarray(closest, dtype=np.float64)
+    d2, segment, closest = igl.point_mesh_squared_distance(points, verts, edges)
+    return (np.sqrt(np.maximum(d2, 0.0)), np.asarray(closest, dtype=np.float64),
+            np.asarray(segment, dtype=np.int64).reshape(-1))
 
 
 def closed_loop_segments(loops: Sequence[np.ndarray | torch.Tensor]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -13,7 +13,7 @@ import trimesh
 from deepcurrents.data.sampling import mesh_sampler
 from deepcurrents.eval.certificate import sharpened_mass_estimate
 from deepcurrents.eval.meshing import extract_curve_2d, extract_surface, mesh_method, mesh_region
-from deepcurrents.eval.meshing.polish import PolishSettings, polish_minimal_surface
+from deepcurrents.eval.meshing.polish import polish_minimal_surface, polish_settings
 from deepcurrents.eval.metrics import (
     boundary_error,
     curve_boundary_error,
@@ -212,11 +212,11 @@ class CurrentModule(DeepCurrentsModule):
         """``mesh_polished.ply`` (in the input's coordinates where ``frame`` is given) and its areas: the extracted
         mesh moved by the area flow of ``eval.meshing.polish`` with Γ (float64, as the run read it) fixed, when
         ``evaluation.mesh.polish.enabled``; the surface's topology always. Areas in model units here."""
-        options = dict(dict(self.evaluation.get("mesh", {})).get("polish") or {})
+        settings = polish_settings(self.evaluation.get("mesh"))
         loops = self.boundary_loops()
-        if not options.pop("enabled", True) or not self.polishes_mesh or len(mesh.faces) == 0:
+        if settings is None or not self.polishes_mesh or len(mesh.faces) == 0:
             return topology_metrics(surface_topology(mesh.faces)) if len(mesh.faces) else {}
-        polished = polish_minimal_surface(mesh, loops, PolishSettings(**options))
+        polished = polish_minimal_surface(mesh, loops, settings)
         metrics = {**topology_metrics(polished.topology), "polish_seconds": round(polished.seconds, 3),
                    "polish_holes_filled": polished.holes_filled, "polish_stopped": polished.stopped}
         if polished.stopped is not None:

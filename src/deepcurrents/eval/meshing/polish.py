@@ -60,6 +60,13 @@ class PolishSettings:
     curve_extrapolation: bool = True
 
 
+def polish_settings(mesh_options: dict | None, **overrides) -> PolishSettings | None:
+    """``PolishSettings`` from a run's ``evaluation.mesh`` (its ``polish`` group), with ``overrides``; None where the
+    polish is off (``enabled: false``)."""
+    options = {**dict(dict(mesh_options or {}).get("polish") or {}), **overrides}
+    return PolishSettings(**options) if options.pop("enabled", True) else None
+
+
 @dataclass
 class PolishResult:
     """The finest level's mesh (the unpolished one where the polish stopped: ``stopped`` says why), the discrete
@@ -79,7 +86,6 @@ class PolishResult:
     level_seconds: list[float] = field(default_factory=list)  # seconds from the start to each level's end
     curve_extrapolated: float | None = None
     curve_extrapolated_error: float | None = None
-    last_areas: list[float] = field(default_factory=list)
 
     @property
     def area(self) -> float:
@@ -220,7 +226,7 @@ def polish_minimal_surface(mesh: trimesh.Trimesh, loops: list[np.ndarray], setti
     result.topology, result.holes_filled, result.stopped = start.topology, start.holes_filled, start.stopped
     if start.stopped:
         return _finish(result, began)
-    vertices, faces, why = _flow(start.vertices, start.faces, settings, start.edge_length, result, began)
+    vertices, faces, _, why = _flow(start.vertices, start.faces, settings, start.edge_length, result, began)
     if why:
         result.stopped = why
         return _finish(result, began)
@@ -231,14 +237,14 @@ def polish_minimal_surface(mesh: trimesh.Trimesh, loops: list[np.ndarray], setti
     return _finish(result, began)
 
 
-def _flow(vertices: np.ndarray, faces: np.ndarray, settings: PolishSettings, h: float, result: PolishResult,
-          began: float | None = None) -> tuple[np.ndarray, np.ndarray, str | None]:
-    """Steps 2–3 of the module docstring from a level-1 mesh of edges ``h``: the flow on each level, its areas in
-    ``result.last_areas`` and, with ``began`` (the polish's start, ``time.perf_counter``), appended to ``result``'s
-    areas, edge lengths, steps and seconds. → (the finest level's vertices, faces, why the flow stopped or None)."""
+def _flow(vertices: np.ndarray, faces: np.ndarray, settings: PolishSettings, h: float, result: PolishResult | None
+          = None, began: float | None = None) -> tuple[np.ndarray, np.ndarray, list[float], str | None]:
+    """Steps 2–3 of the module docstring from a level-1 mesh of edges ``h``: the flow on each level, its areas,
+    edge lengths, steps and seconds since ``began`` (``time.perf_counter``) appended to ``result`` where given.
+    → (the finest level's vertices, faces, each level's area, why the flow stopped or None)."""
     import igl
 
-    areas_out = []
+    level_areas = []
     for level in range(settings.levels):
         if level:
             vertices, faces = igl.upsample(vertices, faces)
@@ -247,29 +253,23 @@ def _flow(vertices: np.ndarray, faces: np.ndarray, settings: PolishSettings, h: 
         vertices, areas = pinkall_polthier(vertices, faces, fixed, settings.tolerance, settings.max_iterations)
         why = _unsettled(vertices, faces, areas)
         if why:
-            return vertices, faces, f"at level {level + 1} (edges {h:.3g}) {why}"
-        areas_out.append(areas[-1])
-        if began is not None:
+            return vertices, faces, level_areas, f"at level {level + 1} (edges {h:.3g}) {why}"
+        level_areas.append(areas[-1])
+        if result is not None:
             result.areas.append(areas[-1])
             result.edge_lengths.append(h)
             result.iterations.append(len(areas) - 1)
             result.level_seconds.append(time.perf_counter() - began)
-    result.last_areas = areas_out
-    return vertices, faces, None
+    return vertices, faces, level_areas, None
 
 
 def every_other_vertex(points: np.ndarray, loop: np.ndarray) -> np.ndarray:
     """Points on a closed polyline (n, 3) moved onto the polygon of its every other vertex (0, 2, 4, …; for odd n
     the last side spans one segment), at the same share of arc length between the two kept vertices.
     points (P, 3) on the loop → (P, 3)."""
-    import igl
-
     n = len(loop)
     ends = np.roll(loop, -1, 0)
-    d2, segment, _ = igl.point_mesh_squared_distance(
-        np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(np.concatenate([loop, ends])),
-        np.stack([np.arange(n), np.arange(n) + n], 1).astype(np.int64))
-    segment = np.asarray(segment, dtype=np.int64)
+    _, _, segment = closest_on_segments(points, loop, ends)
     lengths = np.linalg.norm(ends - loop, axis=1)
     arc = np.concatenate([[0.0], np.cumsum(lengths)])  # arc[j]: arc length at vertex j; arc[n]: the whole loop
     along = arc[segment] + np.linalg.norm(points - loop[segment], axis=1)
@@ -287,20 +287,14 @@ def _extrapolate_in_the_curve(result: PolishResult, level_one: tuple[np.ndarray,
     vertices, faces = np.array(level_one[0]), level_one[1]
     border = np.unique(border_edges(faces))
     starts, ends, owner = closed_loop_segments(loops)
-    import igl
-
-    _, segment, _ = igl.point_mesh_squared_distance(vertices[border], np.concatenate([starts, ends]),
-                                                    np.stack([np.arange(len(starts)), np.arange(len(starts)) +
-                                                              len(starts)], 1).astype(np.int64))
-    which = owner[np.asarray(segment, dtype=np.int64)]
+    which = owner[closest_on_segments(vertices[border], starts, ends)[2]]
     for i, loop in enumerate(loops):
         on = border[which == i]
         vertices[on] = every_other_vertex(vertices[on], loop)
-    coarse = PolishResult(mesh=result.mesh)
-    _, _, why = _flow(vertices, faces, settings, h, coarse)
-    if why or len(coarse.last_areas) < 2:
+    _, _, coarse_areas, why = _flow(vertices, faces, settings, h)
+    if why or len(coarse_areas) < 2:
         return
-    coarse_value, coarse_error = richardson(coarse.last_areas)
+    coarse_value, coarse_error = richardson(coarse_areas)
     fine = result.extrapolated
     result.curve_extrapolated = fine + (fine - coarse_value) / 3.0
     result.curve_extrapolated_error = result.extrapolated_error + coarse_error / 3.0
