@@ -705,3 +705,68 @@ def test_a_level_set_whose_newton_steps_drag_vertices_across_cells_is_meshed_fin
     monkeypatch.setattr(MeshMethod, "newton", newton)
     finer = extract_surface(cup, resolution=60, bounds=bounds, method="level_set")
     assert refined.mesh.area == pytest.approx(finer.mesh.area, rel=1e-12) and refined.mesh.area != plain.mesh.area
+
+
+class FlatPlane(PlaneMethod):
+    """The plane z = 0."""
+
+    name = "flat_plane"
+    normal = torch.tensor([0.0, 0.0, 1.0])
+
+
+class PerforatedDisk(torch.nn.Module):
+    """The current of the flat disk of radius 0.8 with two holes of radius 0.3 whose rims pass ``gap`` apart: ω = e_z
+    on the plane region between the three circles, 0 elsewhere (Γ: the outer rim, the two holes' rims the other
+    way)."""
+
+    def __init__(self, gap: float):
+        super().__init__()
+        self.dim, self.alpha_scale = 3, 1e-3
+        self.centres = [np.array([-(0.3 + gap / 2), 0.0, 0.0]), np.array([0.3 + gap / 2, 0.0, 0.0])]
+        holes = [circle(0.3, n=96)[::-1] + c for c in self.centres]
+        self.loops = [torch.as_tensor(lp, dtype=torch.float32) for lp in (circle(0.8, n=192), *holes)]
+
+    def evaluate(self, x, chunk_size=1 << 15, omega=True):
+        x = x.double()
+        inside = x[:, :2].norm(dim=-1) < 0.8
+        for c in self.centres:
+            inside &= (x[:, :2] - torch.as_tensor(c[:2])).norm(dim=-1) > 0.3
+        w = torch.zeros_like(x)
+        w[:, 2] = inside.double() * torch.exp(-0.5 * (x[:, 2] / 0.03) ** 2)
+        return (torch.zeros(len(x)), w.float()) if omega else torch.zeros(len(x))
+
+
+def test_the_tube_stays_narrower_than_the_gap_between_two_loops(monkeypatch):
+    """Two holes whose rims pass 0.06 apart, less than two 0.04 tubes: cut with the whole tube, their holes joined
+    into one and each rim's strip fanned across the other's. The tube is now at most 0.4 of the gap: each hole is
+    zipped onto its own rim, and the mesh is the perforated disk's polygon area, manifold, with three borders."""
+    monkeypatch.setitem(METHODS, "flat_plane", FlatPlane)
+    current = PerforatedDisk(gap=0.06)
+    loops = [lp.double().numpy() for lp in current.loops]
+    result = extract_surface(current, resolution=144, method="flat_plane", bounds=np.array([[-1, -1, -0.2],
+                                                                                            [1, 1, 0.2]]))
+    mesh = result.mesh
+    assert result.zipped_loops == 3
+    polygon = [0.5 * abs(np.cross(lp, np.roll(lp, -1, 0)).sum(0)[2]) for lp in loops]
+    assert mesh.area == pytest.approx(polygon[0] - polygon[1] - polygon[2], rel=1e-6)
+    edges = np.sort(mesh.edges, axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 2 and len(border_loops(np.asarray(mesh.faces))) == 3
+    assert boundary_error(mesh, loops) < 1e-6
+
+
+def test_a_closed_piece_on_the_target_is_kept_a_bubble_off_it_dropped():
+    """A reconstruction's cavity that the level set pinched off (a mouth behind thin lips) is a closed piece lying on
+    the target: with ``near`` it is kept, while a bubble off the target is still dropped."""
+    from deepcurrents.eval.meshing.surface import _drop_closed_components
+
+    cavity = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    bubble = trimesh.Trimesh(cavity.vertices * 0.5 + [0.0, 0.0, 0.6], cavity.faces)
+    target = trimesh.creation.icosphere(subdivisions=4, radius=0.2)  # the cavity's own surface, finer
+    verts = np.concatenate([cavity.vertices, bubble.vertices])
+    faces = np.concatenate([cavity.faces, bubble.faces + len(cavity.vertices)])
+    kept, dropped = _drop_closed_components(verts, faces, (np.asarray(target.vertices), np.asarray(target.faces)),
+                                            within=0.01)
+    assert len(kept) == len(cavity.faces) and dropped == pytest.approx(bubble.area, rel=1e-12)
+    _, dropped_both = _drop_closed_components(verts, faces)
+    assert dropped_both == pytest.approx(cavity.area + bubble.area, rel=1e-12)

@@ -204,3 +204,14 @@ def sample_tube(starts: torch.Tensor, ends: torch.Tensor, radius: float, n: int,
     angle = 2.0 * math.pi * u[:, 2:3]
     x = starts[j] + u[:, :1] * (ends[j] - starts[j]) + r * (angle.cos() * e1[j] + angle.sin() * e2[j])
     return x, tube_density(x, starts, ends, radius)
+
+
+def loop_gap(loops: Sequence[np.ndarray]) -> float:
+    """The smallest distance between two different closed loops (each (M_i, 3)): from any vertex of one to any
+    segment of another; ``inf`` for a single loop."""
+    gap = np.inf
+    for i, a in enumerate(loops):
+        for b in loops[i + 1:]:
+            b = np.asarray(b, np.float64)
+            gap = min(gap, float(closest_on_segments(np.asarray(a, np.float64), b, np.roll(b, -1, 0))[0].min()))
+    return gap

@@ -207,7 +207,14 @@ class ReconstructionModule(CurrentModule):
         options = super().mesh_options()
         if options.get("bounds") is None:
             options["bounds"] = self.target_bounds(options.get("padding", 0.15))
+        options["closed_on"] = self.closed_pieces_on()
         return options
+
+    def closed_pieces_on(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The target mesh (vertices, faces) on which closed pieces of the extracted mesh are kept, not dropped as
+        bubbles (``extract_surface``'s ``closed_on``: a cavity pinched off by the grid); None for point clouds."""
+        target = TargetGeometry.mesh(self)
+        return None if target is None else (np.asarray(target.vertices), np.asarray(target.faces))
 
     @torch.no_grad()
     def final_evaluation(self, out_dir: str | Path) -> dict[str, Any]:

@@ -24,6 +24,7 @@ import logging
 import math
 from dataclasses import dataclass, replace
 
+import igl
 import numpy as np
 import torch
 import trimesh
@@ -36,7 +37,7 @@ from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
 from deepcurrents.eval.meshing.level_set import LevelSetMethod
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.eval.meshing.phase import PhaseMethod
-from deepcurrents.geometry.polyline import closed_loop_segments, segment_distance
+from deepcurrents.geometry.polyline import closed_loop_segments, loop_gap, segment_distance
 from deepcurrents.geometry.topology import border_edges
 
 log = logging.getLogger(__name__)
@@ -106,10 +107,13 @@ def _drop_small_components(verts: np.ndarray, faces: np.ndarray, min_fraction: f
     return faces[(areas >= min_fraction * areas.sum())[labels]]
 
 
-def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float]:
+def _drop_closed_components(verts: np.ndarray, faces: np.ndarray, near: tuple[np.ndarray, np.ndarray] | None = None,
+                            within: float = 0.0) -> tuple[np.ndarray, float]:
     """Drops connected components without a border edge (closed surfaces: their boundary is empty, so they
-    span no part of Γ). Called after the tube cut, where every sheet that reaches Γ has a border.
-    → (the remaining faces, the area dropped)."""
+    span no part of Γ). Called after the tube cut, where every sheet that reaches Γ has a border. ``near``: a
+    target (vertices, faces); a closed component whose vertices lie within ``within`` of it (median) is kept: a
+    cavity of the target (a mouth, an eye socket) that the level set pinched off where its opening is thinner
+    than the grid, not a bubble. → (the remaining faces, the area dropped)."""
     if len(faces) == 0:
         return faces, 0.0
     mesh = trimesh.Trimesh(verts, faces, process=False)
@@ -118,6 +122,12 @@ def _drop_closed_components(verts: np.ndarray, faces: np.ndarray) -> tuple[np.nd
     on_border[border_edges(faces).ravel()] = True
     bordered = np.zeros(labels.max() + 1, dtype=bool)
     bordered[labels[on_border[faces].any(1)]] = True  # a component with a face on a border edge's vertex
+    if near is not None and not bordered.all():
+        d2, _, _ = igl.point_mesh_squared_distance(np.ascontiguousarray(verts), np.ascontiguousarray(near[0]),
+                                                   np.ascontiguousarray(near[1], dtype=np.int64))
+        face_distance = np.sqrt(d2)[faces].mean(1)
+        for label in np.flatnonzero(~bordered):
+            bordered[label] = np.median(face_distance[labels == label]) <= within
     dropped = float(mesh.area_faces[~bordered[labels]].sum())
     return faces[bordered[labels]], dropped
 
@@ -166,6 +176,7 @@ class MeshSettings:
     strip_rows: int | None = None
     chunk_size: int = 1 << 16
     resolution_key: str = "resolution"
+    closed_on: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass
@@ -197,6 +208,7 @@ def extract_surface(
     resolution_key: str = "resolution",
     refine_aliased: bool = True,
     said: set | None = None,
+    closed_on: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> MeshingResult:
     """The surface of a 3D current as a triangle mesh whose border lies on Γ (see the module docstring).
 
@@ -226,11 +238,14 @@ def extract_surface(
             vertices by more than half a cell (f's jump thinner than the grid: spikes).
         said: the coarse-grid warnings already given in this chain of meshings (a family meshes many members on
             one grid): each is given once per set; None: always.
+        closed_on: a reconstruction's target (vertices (V, 3), faces (F, 3)): closed pieces of the mesh that lie on
+            it (median within two voxels) are kept, where others are dropped as bubbles (a cavity of the target
+            whose opening the grid cannot resolve comes out closed).
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
     settings = MeshSettings(resolution, delta, boundary_tube, newton_steps, min_component, min_alignment,
-                            close_boundary, method, strip_rows, chunk_size, resolution_key)
+                            close_boundary, method, strip_rows, chunk_size, resolution_key, closed_on)
     options = {"level_blend": level_blend} if method == "level_set" else {}
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     bounds = mesh_region(loops, {"bounds": bounds, "padding": padding})
@@ -282,6 +297,27 @@ def _say_widened_tube(settings: MeshSettings, voxel: float, tube: float, said: s
                 boundary_tube, tube, enough)
 
 
+# The tube around Γ is at most this share of the smallest gap between two loops of Γ: wider, the cut around two close
+# loops (a torso's hips, 5 % of its box apart) joins their holes into one, and each loop's strip then fans across it.
+LOOP_GAP_SHARE = 0.4
+
+
+def _tube_radius(s: MeshSettings, voxel: float, loops: list[np.ndarray], said: set | None) -> float:
+    """τ: ``boundary_tube``, at least 1.5 voxels, at most ``LOOP_GAP_SHARE`` of the gap between two loops of Γ (or
+    1.5 voxels where that is less, with a warning: the grid cannot keep those loops apart)."""
+    tube = max(s.boundary_tube, 1.5 * voxel)
+    gap = loop_gap(loops) if len(loops) > 1 else np.inf
+    if tube <= LOOP_GAP_SHARE * gap:
+        return tube
+    narrowed = max(LOOP_GAP_SHARE * gap, 1.5 * voxel)
+    if narrowed > LOOP_GAP_SHARE * gap and (said is None or "gap" not in said):
+        log.warning("Two loops of Γ are %.3g apart, so close that the boundary tube (at least 1.5 cells, %.3g) joins "
+                    "them; raise %s to keep them apart.", gap, narrowed, s.resolution_key)
+        if said is not None:
+            said.add("gap")
+    return narrowed
+
+
 def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.ndarray, settings: MeshSettings,
                refine: bool, said: set | None) -> MeshingResult | _Refine:
     """Meshes the current once on the grid of ``settings`` over ``bounds`` (steps 1–6 of the module docstring), or,
@@ -290,7 +326,7 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
     nodes, shape, voxel = _grid(bounds, s.resolution, s.resolution_key)
     dev = device_of(current)
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
-    tube = max(s.boundary_tube, 1.5 * voxel) if s.close_boundary else 0.0
+    tube = _tube_radius(s, voxel, loops, said) if s.close_boundary else 0.0
     aliased = getattr(finder, "aliased_points", None)
     if refine and aliased is not None and len(aliased):
         starts, ends, _ = closed_loop_segments(loops)  # next to Γ Ω/2 turns fast anyway, and the tube is cut
@@ -321,7 +357,7 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
                         tube, f"raise {s.resolution_key} (the tube is 1.5 cells wide)" if widened
                         else "lower boundary_tube")
             return empty
-    verts, faces, closed_area = _faces_carrying_the_current(current, finder, verts, faces, tube, s)
+    verts, faces, closed_area = _faces_carrying_the_current(current, finder, verts, faces, tube, s, voxel)
     if len(faces) == 0:
         log.warning("No part of the surface carries the current (|ω| ≥ %.3g); the mesh is empty.", s.delta)
         return empty
@@ -351,7 +387,7 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
 
 
 def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, faces: np.ndarray, tube: float,
-                                s: MeshSettings) -> tuple[np.ndarray, np.ndarray, float]:
+                                s: MeshSettings, voxel: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Step 3 of the module docstring: the faces whose centroid has |ω| ≥ δ (and, with a tube, that the method
     says carry the current), without specks and, with a tube, without closed bubbles; unused vertices dropped.
     → (vertices, faces, the closed bubbles' area)."""
@@ -364,7 +400,7 @@ def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, 
             keep &= finder.keep_carrying(centroids, omega, s.min_alignment)
         faces = _drop_small_components(verts, faces[keep.cpu().numpy()], s.min_component)
         if tube > 0:
-            faces, closed_area = _drop_closed_components(verts, faces)
+            faces, closed_area = _drop_closed_components(verts, faces, s.closed_on, 2.0 * voxel)
             if closed_area > 0:
                 log.info("Dropped closed components of area %.4g (they span no part of Γ).", closed_area)
     if len(faces) == 0:
