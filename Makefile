@@ -25,10 +25,13 @@ $(ANNY_STAMP): $(STAMP)
 	$(BIN)/python -c "import anny; anny.Anny(skinning_method='lbs')"
 	touch $(ANNY_STAMP)
 
-# human-part datasets, offline: data/anny/<heads|hands|forearms|arms|torsos|feet>/NNN.ply (100 bodies)
+# human-part datasets, offline: data/anny/<heads|hands|forearms|arms|torsos|feet>/NNN.ply (100 bodies), and
+# whole bodies cut into parts that share their loops, data/anny/bodies/NNN/ (experiment=stitched_body)
 DATA_BODIES ?= 100
+DATA_WHOLE_BODIES ?= 4
 data: $(ANNY_STAMP)
-	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) --out data
+	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) \
+		--whole-bodies $(DATA_WHOLE_BODIES) --out data
 
 # the quick start: the trefoil's minimal surface, 1500 steps of preset=cpu with the fast recipe (recipe=sharp);
 # `make run RUN_RECIPE=` runs preset=cpu alone, `make run RUN_RECIPE= RUN_STEPS=3000` the preset's whole budget

@@ -1,6 +1,7 @@
 """``deepcurrents-make-dataset`` (``python -m deepcurrents.cli.make_dataset``; ``make data``): writes the
 human-part datasets ``<out>/<source>/<category>/NNN.ply`` from Anny bodies or FAUST
-(``deepcurrents.data.human_parts_builder``)."""
+(``deepcurrents.data.human_parts_builder``), and with ``--whole-bodies N`` whole Anny bodies cut into 14 parts that
+share their border loops, ``<out>/anny/bodies/NNN/`` (``deepcurrents.data.body_partition``)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from deepcurrents.cli.common import exit_on_user_error
+from deepcurrents.data.body_partition import anny_body_partition, write_body
 from deepcurrents.data.human_parts import CATEGORIES, DatasetError
 from deepcurrents.data.human_parts_builder import BORDERS, anny_parts, faust_parts, write_parts
 
@@ -46,6 +48,13 @@ def remove_stale_parts(folder: Path, count: int) -> list[Path]:
 def build(args: argparse.Namespace) -> None:
     """Generates or reads the bodies, cuts their parts and writes them (a DatasetError for any bad input)."""
     check_out_dir(args.out)  # before minutes of generating
+    if args.whole_bodies and args.source != "anny":
+        raise DatasetError(f"--whole-bodies={args.whole_bodies} needs --source anny: whole bodies are cut from Anny's "
+                           "skinning.")
+    if args.whole_bodies:
+        write_bodies(args)
+    if not args.categories:
+        return
     if args.source == "anny":
         parts = anny_parts(args.num, args.seed, args.categories, border=args.border)
         meta = {"generator": "anny", "bodies": args.num, "seed": args.seed, "border": args.border}
@@ -70,6 +79,21 @@ def build(args: argparse.Namespace) -> None:
     log.info("wrote %d meshes under %s/%s", len(files), args.out, args.source)
 
 
+def write_bodies(args: argparse.Namespace) -> None:
+    """``--whole-bodies N``: the first N bodies of ``--seed`` (the same people as the parts NNN), each partitioned."""
+    partition, bodies = anny_body_partition(args.whole_bodies, args.seed)
+    root = Path(args.out).expanduser() / "anny" / "bodies"
+    meta = {"generator": "anny", "seed": args.seed}
+    try:
+        for i, body in enumerate(bodies):
+            write_body(partition, body, root / f"{i:03d}", {**meta, "index": i})
+    except OSError as err:
+        raise DatasetError(f"--out='{args.out}': writing the bodies failed ({err.strerror or type(err).__name__}"
+                           f"{': ' + str(err.filename) if err.filename else ''}).") from None
+    log.info("bodies: %d whole bodies of %d parts and %d shared loops under %s", len(bodies), len(partition.parts),
+             len(partition.loops), root)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description="Human-part datasets for reconstruction and families (paper §5.2).")
     parser.add_argument("--source", choices=("anny", "faust"), default="anny")
@@ -81,9 +105,14 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--border", choices=BORDERS, default="smooth",
                         help="smooth: cut along a level set of the skinning weights (FAUST: of the smoothed labels), "
                         "inside triangles; faces: along mesh edges, each face to its dominant bone (the former cut)")
+    parser.add_argument("--whole-bodies", type=int, default=0,
+                        help="Anny: also write this many whole bodies cut into 14 parts that share their border loops "
+                        "(OUT/anny/bodies/NNN/: body.ply, parts/*.ply, loops.json), for experiment=stitched_body")
     args = parser.parse_args(argv)
-    if not args.categories:  # `--categories` with no names: nothing would be written
-        parser.error(f"--categories needs at least one of {', '.join(CATEGORIES)}.")
+    if not args.categories and not args.whole_bodies:  # `--categories` with no names: nothing would be written
+        parser.error(f"--categories needs at least one of {', '.join(CATEGORIES)} (or give --whole-bodies N).")
+    if args.whole_bodies < 0:
+        parser.error(f"--whole-bodies={args.whole_bodies} must be at least 0 (the number of whole bodies to write).")
     if args.source == "anny" and args.num < 1:
         parser.error(f"--num={args.num} must be at least 1 (the number of bodies to generate).")
     logging.basicConfig(level=logging.INFO, format="%(message)s")

@@ -205,7 +205,8 @@ def level_set_cut(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, s
     for _ in range(10):
         # a snapped saddle vertex would pinch the part (or, once reduced to one component, cut it in two
         # there): such vertices keep their own value. Part vertices below V are the mesh's own.
-        weights, part_faces = _split_at_zero(vertices, faces, snapped, values, keep_faces)
+        weights, split_faces, positive, _ = _split_at_zero(vertices, faces, snapped, values, keep_faces)
+        part_faces = split_faces[positive]
         pinched = _pinched_vertices(part_faces)
         pinched = pinched[pinched < len(vertices)]
         pinched = pinched[(snapped[pinched] == 0) & (values[pinched] != 0)]
@@ -220,20 +221,25 @@ def level_set_cut(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, s
 
 
 def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, original: np.ndarray,
-                   keep_faces: np.ndarray | None) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
-    """The {values ≥ 0} part of the mesh (see ``level_set_cut``), values with exact zeros after snapping.
+                   keep_faces: np.ndarray | None
+                   ) -> tuple[scipy.sparse.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh split along the zero level set of ``values`` (exact zeros after snapping, see ``level_set_cut``):
+    every triangle the iso-line crosses is cut into its pieces on either side, which share the crossing points.
 
-    → (weights (V + P, V): the mesh's vertices then the P crossing points, faces (F', 3) indexing them)."""
+    → (weights (V + P, V): the mesh's vertices then the P crossing points; faces (F', 3) of both sides, indexing
+    them; positive (F',) bool: the face lies in {values ≥ 0}; origin (F',): the face of ``faces`` each is a piece
+    of). Faces outside ``keep_faces`` and their pieces are dropped."""
     sign = np.sign(values).astype(np.int64)[faces]  # (F, 3)
     pos, neg = (sign > 0).sum(1), (sign < 0).sum(1)
     # all-zero triangles (a snapped triangle) follow the mean of the unsnapped field
     flat = (pos == 0) & (neg == 0)
-    whole = (neg == 0) & (pos > 0) | flat & (original[faces].mean(1) >= 0)
     split = (pos > 0) & (neg > 0)
+    inside = ((neg == 0) & (pos > 0) | flat & (original[faces].mean(1) >= 0)) & ~split
+    whole = ~split
     if keep_faces is not None:
         whole &= keep_faces
         split &= keep_faces
-    new_faces = [faces[whole]]
+    new_faces, new_side, new_origin = [faces[whole]], [inside[whole]], [np.flatnonzero(whole)]
     points: dict[tuple[int, int], int] = {}  # edge (inside vertex, outside vertex) → new point id
     n = len(vertices)
     point_rows: list[tuple[int, int, float]] = []
@@ -246,6 +252,22 @@ def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, 
             point_rows.append((i, o, float(t)))
         return points[key]
 
+    def point(p: int) -> np.ndarray:
+        i, o, t = point_rows[p - n]
+        return vertices[i] + (vertices[o] - vertices[i]) * t
+
+    def quad(p: int, b: int, c: int, q: int) -> np.ndarray:
+        """The quad (p, b, c, q) (p on the edge before b, q on the edge after c) in two triangles along its
+        shorter diagonal."""
+        if np.linalg.norm(point(p) - vertices[c]) <= np.linalg.norm(point(q) - vertices[b]):
+            return np.array([[p, b, c], [p, c, q]])
+        return np.array([[p, b, q], [b, c, q]])
+
+    def add(tris: np.ndarray, positive: bool) -> None:
+        new_faces.append(tris)
+        new_side.append(np.full(len(tris), positive))
+        new_origin.append(np.full(len(tris), f))
+
     for f in np.flatnonzero(split):
         tri, s = faces[f], sign[f]
         # the odd vertex first: the zero one, else the one alone on its side
@@ -253,21 +275,23 @@ def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, 
         k = int(np.flatnonzero(s == odd)[0])
         a, b, c = tri[k], tri[(k + 1) % 3], tri[(k + 2) % 3]  # cyclic order kept: orientation is kept
         sa, sb = values[a], values[b]
-        if sa == 0:
+        if sa == 0:  # the iso-line runs from a to a point on bc
             if sb > 0:
-                new_faces.append(np.array([[a, b, crossing(b, c)]]))
+                p = crossing(b, c)
+                add(np.array([[a, b, p]]), True)
+                add(np.array([[a, p, c]]), False)
             else:
-                new_faces.append(np.array([[a, crossing(c, b), c]]))
-        elif sa > 0:  # a alone inside: the corner triangle
-            new_faces.append(np.array([[a, crossing(a, b), crossing(a, c)]]))
-        else:  # a alone outside: the quad (pa, b, c, pc) in two triangles, along its shorter diagonal
+                p = crossing(c, b)
+                add(np.array([[a, p, c]]), True)
+                add(np.array([[a, b, p]]), False)
+        elif sa > 0:  # a alone inside: the corner triangle inside, the quad outside
+            pb, pc = crossing(a, b), crossing(a, c)
+            add(np.array([[a, pb, pc]]), True)
+            add(quad(pb, b, c, pc), False)
+        else:  # a alone outside: the quad (pb, b, c, pc) inside, the corner outside
             pb, pc = crossing(b, a), crossing(c, a)
-            pos_b = vertices[b] + (vertices[a] - vertices[b]) * point_rows[pb - n][2]
-            pos_c = vertices[c] + (vertices[a] - vertices[c]) * point_rows[pc - n][2]
-            if np.linalg.norm(pos_b - vertices[c]) <= np.linalg.norm(pos_c - vertices[b]):
-                new_faces.append(np.array([[pb, b, c], [pb, c, pc]]))
-            else:
-                new_faces.append(np.array([[pb, b, pc], [b, c, pc]]))
+            add(quad(pb, b, c, pc), True)
+            add(np.array([[a, pb, pc]]), False)
     all_faces = np.concatenate(new_faces).astype(np.int64)
     # the weights: identity rows for the mesh's vertices, then (1 − t, t) rows for the crossing points
     i, o, t = (np.array(x).reshape(-1) for x in zip(*point_rows, strict=True)) if point_rows else \
@@ -277,7 +301,7 @@ def _split_at_zero(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray, 
         (np.concatenate([np.ones(n), 1.0 - t, t]),
          (np.concatenate([np.arange(n), ids, ids]), np.concatenate([np.arange(n), i, o]).astype(np.int64))),
         shape=(n + len(point_rows), n))
-    return full, all_faces
+    return full, all_faces, np.concatenate(new_side), np.concatenate(new_origin)
 
 
 def smooth_label_field(faces: np.ndarray, in_part: np.ndarray, num_vertices: int,

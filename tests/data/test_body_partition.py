@@ -1,0 +1,151 @@
+"""Whole bodies cut into parts with shared loops: a synthetic three-part body with skinning shares linear in z (where
+the cuts must lie is known exactly), then Anny's 14 parts written and read back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from deepcurrents.cli.make_dataset import main
+from deepcurrents.data.body_partition import (
+    BodyPart,
+    partition_body,
+    read_body,
+    subtree_shares,
+    write_body,
+)
+from deepcurrents.data.human_parts import DatasetError
+from deepcurrents.geometry.topology import border_loops, surface_topology
+
+CHAIN = (BodyPart("torso", r"^root$", None, None), BodyPart("limb", r"^limb$", "torso", "shoulder"),
+         BodyPart("hand", r"^hand$", "limb", "wrist"))
+
+
+def synthetic_body(hidden_cap: bool = False):
+    """An ellipsoid along z (half-length 2) with bones root, limb, hand: the limb's subtree share is 1/2 at z = 0 and
+    the hand's at z = 1, both linear in z around there; ``hidden_cap``: the faces around the bottom pole hidden."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    verts = np.asarray(sphere.vertices) * [1.0, 1.0, 2.0]
+    z = verts[:, 2]
+    hand = np.clip(z - 0.5, 0, 1)  # 1/2 at z = 1
+    limb_subtree = np.clip(z + 0.5, 0, 1)  # 1/2 at z = 0
+    weights = np.stack([1 - limb_subtree, limb_subtree - hand, hand], 1)
+    faces = np.asarray(sphere.faces)
+    hidden = verts[faces][:, :, 2].mean(1) < -1.9 if hidden_cap else None
+    return verts, faces, weights, ["root", "limb", "hand"], hidden
+
+
+def test_subtree_shares_add_the_parts_below():
+    verts, _, weights, names, _ = synthetic_body()
+    shares = subtree_shares(weights, names, CHAIN)
+    np.testing.assert_allclose(shares[:, 0], 1.0)
+    np.testing.assert_allclose(shares[:, 1], weights[:, 1] + weights[:, 2])
+    np.testing.assert_allclose(shares[:, 2], weights[:, 2])
+    with pytest.raises(DatasetError, match="Bone 'extra' belongs to no body part"):
+        subtree_shares(np.c_[weights, np.zeros(len(weights))], [*names, "extra"], CHAIN)
+    with pytest.raises(DatasetError, match="matches two body parts"):
+        subtree_shares(weights, names, (*CHAIN, BodyPart("again", r"^hand$", "limb", "x")))
+
+
+def test_partition_cuts_on_the_level_sets_and_shares_each_loop():
+    verts, faces, weights, names, _ = synthetic_body()
+    part = partition_body(verts, faces, weights, names, parts=CHAIN, snap=0.0)
+    at = np.asarray(part.weights @ verts)
+    np.testing.assert_allclose(part.weights.sum(1), 1.0)
+    # every face in one part; the body closed; each part the expected piece
+    assert surface_topology(part.faces).describe() == "a connected surface (genus 0, 0 border loops, χ = 2)"
+    kinds = {p.name: surface_topology(part.part_faces(p.name)[1]).describe() for p in CHAIN}
+    assert kinds == {"torso": "a disk (genus 0, 1 border loop, χ = 1)",
+                     "limb": "an annulus (genus 0, 2 border loops, χ = 0)",
+                     "hand": "a disk (genus 0, 1 border loop, χ = 1)"}
+    # the loops lie on the level sets z = 0 and z = 1 (the shares are linear there), and the area is the body's
+    loops = {name: (child, parent, idx) for name, child, parent, idx in part.loops}
+    np.testing.assert_allclose(at[loops["shoulder"][2], 2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(at[loops["wrist"][2], 2], 1.0, atol=1e-12)
+    assert loops["shoulder"][:2] == ("limb", "torso") and loops["wrist"][:2] == ("hand", "limb")
+    assert trimesh.Trimesh(at, part.faces).area == pytest.approx(trimesh.Trimesh(verts, faces).area, rel=1e-12)
+    # the child runs the loop one way, the parent the other: as the child's border, reversed as the parent's
+    for name, (_, parent, idx) in loops.items():
+        used, sub = part.part_faces(parent)
+        parent_loops = [used[lp] for lp in border_loops(sub)]
+        rolled = [np.roll(lp[::-1], -int(np.flatnonzero(lp[::-1] == idx[0])[0]))
+                  for lp in parent_loops if idx[0] in lp]
+        assert len(rolled) == 1 and np.array_equal(rolled[0], idx), name
+
+
+def test_hidden_faces_are_left_out_and_their_opening_capped():
+    verts, faces, weights, names, hidden = synthetic_body(hidden_cap=True)
+    part = partition_body(verts, faces, weights, names, hidden=hidden, parts=CHAIN)
+    at = np.asarray(part.weights @ verts)
+    assert surface_topology(part.faces).border_loops == 0
+    # the cap is a fan to the opening's centroid, which lies on the hidden region's rim plane
+    assert at[:, 2].min() > -2.0 + 1e-3
+    torso = part.part_faces("torso")[1]
+    assert surface_topology(torso).border_loops == 1  # the cap belongs to the torso: its only border is the loop
+
+
+def test_write_and_read_a_body(tmp_path):
+    verts, faces, weights, names, _ = synthetic_body()
+    part = partition_body(verts, faces, weights, names, parts=CHAIN)
+    folder = write_body(part, verts, tmp_path / "000")
+    body = read_body(folder)
+    assert set(body.parts) == {"torso", "limb", "hand"} and [lp[0] for lp in body.loops] == ["shoulder", "wrist"]
+    for _, (child, parent), loop, _ in body.loops:
+        for p in (child, parent):  # each part's file ends exactly on the loop (float32 files: to 1e-6)
+            mesh = trimesh.load(body.part_file(p), process=False)
+            ends = [np.asarray(mesh.vertices)[lp] for lp in border_loops(np.asarray(mesh.faces))]
+            assert any(len(e) == len(loop) and np.abs(np.sort(e, 0) - np.sort(loop, 0)).max() < 1e-6 for e in ends)
+    (folder / "loops.json").write_text("{not json")
+    with pytest.raises(DatasetError, match="is not a body's loops.json"):
+        read_body(folder)
+    with pytest.raises(DatasetError, match="has no loops.json; run `make data`"):
+        read_body(tmp_path / "nothing")
+
+
+def test_anny_whole_bodies_from_the_command_line(tmp_path):
+    main(["--source", "anny", "--whole-bodies", "1", "--categories", "--out", str(tmp_path)])
+    body = read_body(tmp_path / "anny" / "bodies" / "000")
+    assert len(body.parts) == 14 and len(body.loops) == 13
+    assert surface_topology(body.body_faces).describe() == "a connected surface (genus 0, 0 border loops, χ = 2)"
+    for name, info in body.parts.items():
+        mesh = trimesh.load(body.part_file(name), process=False)
+        loops = len(border_loops(np.asarray(mesh.faces)))
+        assert loops == len(info["loops"]), name
+    with pytest.raises(SystemExit):
+        main(["--source", "faust", "--whole-bodies", "1", "--faust-root", str(tmp_path), "--out", str(tmp_path)])
+
+
+def test_moving_a_loop_carries_the_parts_below_and_deforms_the_one_above(tmp_path):
+    from deepcurrents.data.body_edit import LoopMove, move_loop, parts_below
+
+    verts, faces, weights, names, _ = synthetic_body()
+    body = read_body(write_body(partition_body(verts, faces, weights, names, parts=CHAIN), verts, tmp_path / "b"))
+    assert parts_below(body, "limb") == ["limb", "hand"]
+    loops = {name: (pair, idx) for name, pair, _, idx in body.loops}
+    wrist, shoulder = loops["wrist"][1], loops["shoulder"][1]
+    move = LoopMove(rotate=30.0, axis=(1.0, 0.0, 0.0))
+    # carry: the hand and the limb turn rigidly about the wrist loop's centroid, the torso deforms; the shoulder is
+    # the limb's, so it turns too
+    moved, refit, rigid = move_loop(body, "shoulder", move, carry=True)
+    assert refit == ["torso"] and rigid == ["limb", "hand"]
+    centre = body.body_vertices[shoulder].mean(0)
+    c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    rotation = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    limb = np.asarray(body.parts["limb"]["body_vertices"] + body.parts["hand"]["body_vertices"])
+    np.testing.assert_allclose(moved[limb], centre + (body.body_vertices[limb] - centre) @ rotation.T, atol=1e-12)
+    # the torso follows near the moved loop and stays put beyond 0.75 of its diameter (here 1.5) from it
+    torso = np.asarray(body.parts["torso"]["body_vertices"])
+    shift = np.linalg.norm(moved[torso] - body.body_vertices[torso], axis=1)
+    z = body.body_vertices[torso, 2]
+    assert shift[z < -1.8].max() == 0.0 and shift[z > -0.3].mean() > 0.1
+    assert np.isfinite(moved).all() and shift.max() < 0.6
+    # no carry: the loop alone moves (scaled), both parts it joins deform, the other loop stays where it was
+    moved, refit, rigid = move_loop(body, "wrist", LoopMove(scale=0.5), carry=False)
+    assert refit == ["hand", "limb"] and rigid == []
+    ring = body.body_vertices[wrist]
+    np.testing.assert_allclose(moved[wrist], ring.mean(0) + 0.5 * (ring - ring.mean(0)), atol=1e-12)
+    np.testing.assert_array_equal(moved[shoulder], body.body_vertices[shoulder])
+    np.testing.assert_array_equal(moved[torso], body.body_vertices[torso])
+    with pytest.raises(DatasetError, match="has no loop 'elbow'; its loops are shoulder, wrist"):
+        move_loop(body, "elbow", move)
