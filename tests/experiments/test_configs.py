@@ -19,7 +19,8 @@ from deepcurrents.experiments.runner import build, train
 
 CONF = Path(CONF_DIR)
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
-SUITES = ("fig4", "hand_ablation", "table1")  # several runs and a report: their members are experiments
+# several runs and a report: their members are experiments
+SUITES = ("fig4", "hand_ablation", "table1", "stitched_body")
 PARTS = {"recon_head": "heads", "recon_hand": "hands", "recon_forearm": "forearms", "recon_arm": "arms",
          "recon_torso": "torsos", "recon_foot": "feet"}
 # chosen by the defaults list (preset × data, preset × model), never on the command line
@@ -124,9 +125,22 @@ def test_every_experiment_builds_its_datamodule_and_module(experiment, inputs):
     assert sum(p.numel() for p in module.parameters()) > 0
 
 
+@pytest.fixture(scope="module")
+def body_parts(tmp_path_factory) -> Path:
+    """A body folder's part files as experiment=stitched_body reads them: a small cap for each of the 14 parts."""
+    from deepcurrents.data.body_partition import BODY_PARTS
+
+    folder = tmp_path_factory.mktemp("body")
+    (folder / "parts").mkdir()
+    for part in BODY_PARTS:
+        spherical_cap(height=0.2, subdivisions=2).export(folder / "parts" / f"{part.name}.ply")
+    return folder
+
+
 @pytest.mark.parametrize("suite", SUITES)
-def test_every_suite_member_builds_and_the_report_imports(suite, inputs):
-    cfg = composed(f"experiment={suite}", "preset=paper")
+def test_every_suite_member_builds_and_the_report_imports(suite, inputs, body_parts):
+    body = [f"suite.body={body_parts}"] if suite == "stitched_body" else []
+    cfg = composed(f"experiment={suite}", "preset=paper", *body)
     assert callable(get_object(cfg.suite.report))
     for run in cfg.suite.runs:
         experiment = next(o.split("=", 1)[1] for o in run.overrides if o.startswith("experiment="))

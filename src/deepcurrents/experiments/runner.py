@@ -10,7 +10,9 @@ A suite is declared in an experiment's config::
       report: deepcurrents.experiments.tables.write_table  # callable(suite_dir, results, cfg) → writes files
 
 The command line's own overrides (e.g. ``preset=cpu``, ``trainer=gpu``) are passed on to every member,
-except ``experiment=`` (each member names its own). Members run in this process, one after another.
+except ``experiment=`` (each member names its own) and ``suite.*`` (the suite's own settings). Members run in this
+process, one after another, or with ``suite.jobs: N`` (or ``auto``: one per two cores, at most the members) in N
+processes side by side, each member a ``python -m deepcurrents.cli.train`` of its own overrides.
 
 The command ``python train.py …`` (``deepcurrents.cli.train``) is a thin wrapper around :func:`train`.
 """
@@ -56,7 +58,7 @@ from deepcurrents.experiments.run_dir import (
 from deepcurrents.models.callbacks import progress_bar
 from deepcurrents.models.checkpointing import AtomicCheckpointIO, PreemptionCheckpoint, ResumeState, kept_checkpoint
 from deepcurrents.models.current_module import boundary_spec
-from deepcurrents.models.loading import check_resumable
+from deepcurrents.models.loading import check_resumable, warm_start
 
 log = logging.getLogger("deepcurrents")
 
@@ -267,6 +269,9 @@ def _train_one(cfg: DictConfig, out_dir: Path, resume_hint: str | None = None, m
         warn_unread_schedule_settings(cfg, inherited_overrides())
     resume = resume_path(cfg.get("ckpt_path"), out_dir)
     resumed_step = _resumed_step(cfg, resume, module)
+    if cfg.get("init_from") and resume is None:
+        copied = warm_start(module, cfg.init_from)
+        log.info("Warm start: %d network tensors from %s.", copied, cfg.init_from)
     check_free_space(out_dir, module)
     module.check_final_mesh()
     last = out_dir / "checkpoints" / "last.ckpt"
@@ -386,8 +391,9 @@ def command_overrides() -> list[str]:
 
 
 def inherited_overrides() -> list[str]:
-    """The command line's overrides that every suite member inherits (all but ``experiment=``)."""
-    return [o for o in command_overrides() if not o.lstrip("+~").startswith("experiment=")]
+    """The command line's overrides that every suite member inherits (all but ``experiment=`` and the suite's own
+    ``suite.*``)."""
+    return [o for o in command_overrides() if not o.lstrip("+~").startswith(("experiment=", "suite."))]
 
 
 # The data settings that choose a run's problem (which curve, mesh, point cloud, family or part); the others modify
@@ -516,6 +522,69 @@ def check_suite_variants(cfg: DictConfig, inherited: list[str],
                               f"{members[a][0][0]} {' '.join(culprits)}`).")
 
 
+def _member_hint(out_dir: Path, name: str, overrides: list[str]) -> str:
+    """How to continue a suite stopped in member ``name``: the suite's command, or this member alone."""
+    command = " ".join(shlex.quote(o) for o in [*overrides, "ckpt_path=auto", f"hydra.run.dir={out_dir / name}"])
+    suite = (continue_hint(out_dir).rstrip(".") if in_multirun() else
+             f"The suite continues with its command and ckpt_path=auto hydra.run.dir={out_dir}")
+    return (f"{suite} (each member from its own checkpoint), or this member ({name}) alone with `python train.py "
+            f"{command}`.")
+
+
+def suite_jobs(value: Any, members: int) -> int:
+    """``suite.jobs``: a positive integer as given, ``auto`` one process per two cores (each member's trainer
+    beside its loader worker), at most ``members``."""
+    if value == "auto":
+        return max(1, min(members, available_cores() // 2))
+    return min(positive_int("suite.jobs", value), max(1, members))
+
+
+def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], out_dir: Path,
+                             jobs: int) -> list[dict[str, Any]]:
+    """The members in ``jobs`` processes side by side (``python -m deepcurrents.cli.train`` each, its output in
+    ``<member>/suite_member.log``); results in the members' order. A member that fails ends the suite with its own
+    sentence once the members running beside it have finished."""
+    import subprocess
+
+    pending = list(members.items())
+    running: dict[str, tuple[subprocess.Popen, Any]] = {}
+    failed: list[str] = []
+    while pending or running:
+        while pending and len(running) < jobs and not failed:
+            name, (overrides, _) = pending.pop(0)
+            member_dir = make_run_dir(out_dir / name)
+            log.info("suite member %s (in its own process): %s", name, " ".join(overrides))
+            output = open(member_dir / "suite_member.log", "w")  # noqa: SIM115 (closed when the member ends)
+            # the cores shared out: torch's own choice in each process would count every core, and jobs × cores
+            # threads on the cores wait on each other
+            threads = [] if any(o.startswith("torch_threads=") for o in overrides) else \
+                [f"torch_threads={max(1, available_cores() // jobs)}"]
+            command = [sys.executable, "-m", "deepcurrents.cli.train", *overrides, *threads,
+                       f"hydra.run.dir={member_dir}"]
+            running[name] = (subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT), output)
+        if not running:
+            break
+        time.sleep(0.5)
+        for name in [n for n, (proc, _) in running.items() if proc.poll() is not None]:
+            proc, output = running.pop(name)
+            output.close()
+            if proc.returncode != 0:
+                lines = (out_dir / name / "suite_member.log").read_text(errors="replace").strip().splitlines()
+                why = lines[-1] if lines else f"exit status {proc.returncode}"
+                failed.append(f"Suite member {name} stopped: {why} (its output: {out_dir / name / 'suite_member.log'}; "
+                              f"{_member_hint(out_dir, name, members[name][0])})")
+            else:
+                log.info("suite member %s finished", name)
+    if failed:
+        raise UserInputError(failed[0])
+    results = []
+    for name, (overrides, _) in members.items():
+        path = out_dir / name / "metrics.json"
+        metrics = json.loads(path.read_text()) if path.is_file() else {}
+        results.append({"name": name, "overrides": overrides, "dir": str(out_dir / name), "metrics": metrics})
+    return results
+
+
 def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:
     """Runs every member of ``cfg.suite`` into ``out_dir/<name>`` and calls the report. → member results.
 
@@ -526,17 +595,17 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
     check_suite_overrides(cfg, inherited)
     members = compose_members(cfg, inherited, out_dir)  # every member checked before the first one trains
     check_suite_variants(cfg, inherited, members)
-    results = []
-    for name, (overrides, member_cfg) in members.items():
-        member_dir = out_dir / name
-        log.info("suite member %s: %s", name, " ".join(overrides))
-        command = " ".join(shlex.quote(o) for o in [*overrides, "ckpt_path=auto", f"hydra.run.dir={member_dir}"])
-        suite = (continue_hint(out_dir).rstrip(".") if in_multirun() else
-                 f"The suite continues with its command and ckpt_path=auto hydra.run.dir={out_dir}")
-        hint = (f"{suite} (each member from its own checkpoint), or this member ({name}) alone with `python train.py "
-                f"{command}`.")
-        metrics = train(member_cfg, out_dir=member_dir, resume_hint=hint, member=name, overrides=overrides)
-        results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
+    jobs = suite_jobs(cfg.suite.get("jobs", 1), len(members))
+    if jobs > 1:
+        results = run_members_in_processes(members, out_dir, jobs)
+    else:
+        results = []
+        for name, (overrides, member_cfg) in members.items():
+            member_dir = out_dir / name
+            log.info("suite member %s: %s", name, " ".join(overrides))
+            metrics = train(member_cfg, out_dir=member_dir, resume_hint=_member_hint(out_dir, name, overrides),
+                            member=name, overrides=overrides)
+            results.append({"name": name, "overrides": overrides, "dir": str(member_dir), "metrics": metrics or {}})
     (out_dir / "suite.json").write_text(metrics_json(results))
     report = cfg.suite.get("report") or "deepcurrents.experiments.tables.write_table"
     hydra.utils.get_method(report)(out_dir, results, cfg)
