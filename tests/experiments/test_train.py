@@ -292,3 +292,53 @@ def test_the_progress_bar_names_the_run_not_an_epoch_of_minus_two(tmp_path):
     assert len(bars) == 1 and bars[0]._get_train_description(0).strip() == "Training"
     quiet = compose_cfg(["experiment=minimal_trefoil", "callbacks.media=null", "trainer.enable_progress_bar=false"])
     assert not any(isinstance(cb, ProgressBar) for cb in build_callbacks(quiet, tmp_path))
+
+
+def test_init_from_starts_the_network_from_another_run_with_its_own_boundary(tmp_path):
+    from deepcurrents.models.loading import CheckpointError, warm_start
+
+    first = tmp_path / "first"
+    train(compose_cfg(["experiment=minimal_trefoil", *TINY]), out_dir=first)
+    ckpt = first / "checkpoints/last.ckpt"
+    saved = torch.load(ckpt, weights_only=True)["state_dict"]
+    _, module = build(compose_cfg(["experiment=minimal_curve", "data.curve=hopf", *TINY]))
+    assert warm_start(module, ckpt) > 0
+    state = module.state_dict()
+    network = [k for k in saved if k.startswith("current.") and k != "current.vertices" and k != "current.loop_sizes"]
+    assert network and all(torch.equal(state[k], saved[k]) for k in network)
+    assert state["current.vertices"].shape != saved["current.vertices"].shape  # Γ is the Hopf link's, not the trefoil's
+    # a run started from it counts its own steps
+    warm = train(compose_cfg(["experiment=minimal_curve", "data.curve=hopf", *TINY, f"init_from={ckpt}"]),
+                 out_dir=tmp_path / "warm")
+    assert warm["steps"] == 6
+    wider = [*TINY, "model.net.width=24"]
+    _, other = build(compose_cfg(["experiment=minimal_trefoil", *wider]))
+    with pytest.raises(CheckpointError, match=r"has a network of other settings \(current\.mlp"):
+        warm_start(other, ckpt)
+
+
+@pytest.mark.slow
+def test_suite_members_run_side_by_side_and_a_failing_one_is_named(tmp_path):
+    """suite.jobs=2: members run as processes of their own (each `python -m deepcurrents.cli.train` with the cores
+    shared out); their metrics come back in the suite's order, and a member that stops is named with its sentence."""
+    from conftest import hydra_context
+    from omegaconf import OmegaConf
+
+    from deepcurrents.experiments.runner import available_cores, run_suite
+
+    cfg = compose_cfg(["experiment=fig4"])
+    tiny = [*TINY, "trainer.max_steps=3", "callbacks.media=null"]
+    OmegaConf.set_struct(cfg, False)
+    cfg.suite = {"jobs": 2, "report": "deepcurrents.experiments.tables.write_table",
+                 "runs": [{"name": "trefoil", "overrides": ["experiment=minimal_trefoil", *tiny]},
+                          {"name": "hopf", "overrides": ["experiment=minimal_hopf", *tiny]}]}
+    with hydra_context():
+        results = run_suite(cfg, tmp_path, extra_overrides=[])
+    assert [r["name"] for r in results] == ["trefoil", "hopf"]
+    assert all(r["metrics"]["steps"] == 3 for r in results)
+    overrides = (tmp_path / "hopf" / ".hydra" / "overrides.yaml").read_text()
+    assert f"torch_threads={max(1, available_cores() // 2)}" in overrides
+    cfg.suite.runs.append({"name": "missing", "overrides": ["experiment=minimal_curve", "data.curve=nowhere.obj",
+                                                              *tiny]})
+    with hydra_context(), pytest.raises(UserInputError, match=r"^Suite member missing stopped: .*nowhere\.obj"):
+        run_suite(cfg, tmp_path / "again", extra_overrides=[])

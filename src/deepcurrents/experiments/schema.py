@@ -692,6 +692,7 @@ class Root:
     task_name: str = setting("minimal", "the run's name (its output folder)")
     seed: int = setting(0, "the run's seed", integer(0))
     ckpt_path: str | None = setting(None, "resume from this checkpoint")
+    init_from: str | None = setting(None, "warm start: the network of this checkpoint (not its step or Γ)")
     torch_threads: Any = setting(None, "torch threads: an integer, auto or null (torch's choice)", torch_threads)
     objective: str | None = setting(None, "a metrics.json key returned to Hydra sweepers")
     suite: Any = setting(None, "several runs and a report (set by experiments)")

@@ -346,6 +346,8 @@ def mesh_settings(module: Any, shape: int | None = None, **overrides: Any) -> di
     elif settings.get("bounds") is None and callable(getattr(module, "target_bounds", None)):
         # reconstructions: the run meshed over its target's box, so must the apps
         settings["bounds"] = module.target_bounds(settings.get("padding", 0.15))
+    if callable(getattr(module, "closed_pieces_on", None)):  # and kept the closed pieces on its target
+        settings["closed_on"] = module.closed_pieces_on()
     return mesh_method(settings, getattr(module, "mesh_method", "phase"))
 
 
@@ -360,3 +362,30 @@ def resolve_device(device: str) -> torch.device:
     if dev.type == "cuda" and not torch.cuda.is_available():
         raise UserInputError(f"device='{device}' was asked for, but no CUDA GPU is available here.")
     return dev
+
+
+# The state of a current that is its problem's, not its training's: Γ (loops or 2D poles)
+BOUNDARY_BUFFERS = ("current.vertices", "current.loop_sizes", "current.poles", "current.signs")
+
+
+def warm_start(module: DeepCurrentsModule, ckpt_path: str | Path) -> int:
+    """Copies the network of another run's checkpoint into ``module`` (``init_from``): every tensor of its current f
+    (features, MLP, grid) but Γ, which stays this run's; the step, the optimiser and the target are not taken. The
+    checkpoint must be of the same model kind with the same network settings, else CheckpointError saying which
+    tensor differs. → the number of tensors copied."""
+    ckpt = read_checkpoint(ckpt_path)
+    saved_class = str(ckpt[CHECKPOINT_KEY]["module"])
+    own = f"{type(module).__module__}.{type(module).__qualname__}"
+    if MOVED_CLASSES.get(saved_class, saved_class) != own:
+        raise CheckpointError(f"init_from='{ckpt_path}' is {run_kind(module_class(saved_class, ckpt_path))}, not "
+                              f"{run_kind(type(module))} like this run, so its network cannot start this one.")
+    state = module.state_dict()
+    network = {k: v for k, v in ckpt["state_dict"].items() if k.startswith("current.") and k not in BOUNDARY_BUFFERS}
+    for key, value in network.items():
+        if key not in state or tuple(state[key].shape) != tuple(value.shape):
+            here = tuple(state[key].shape) if key in state else "absent"
+            raise CheckpointError(f"init_from='{ckpt_path}' has a network of other settings ({key}: "
+                                  f"{tuple(value.shape)} there, {here} here); a warm start needs the same model.net, "
+                                  "model.rff and model.grid_encoding.")
+    module.load_state_dict(network, strict=False)
+    return len(network)
