@@ -29,6 +29,8 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
+from deepcurrents.data.body_partition import BodyPart
+
 ROOT = Path(__file__).resolve().parents[1]
 CONF_DIR = str(ROOT / "conf")
 
@@ -295,3 +297,22 @@ def disk_mesh(loop, rows, bump=0.0):
     last = (rows - 1) * n + np.arange(n)
     faces.append(np.stack([last, np.roll(last, -1), np.full(n, rows * n)], 1))
     return verts, np.concatenate(faces)
+
+
+# A three-part body for the stitched-body tests (tests/data/test_body_partition.py, tests/experiments/test_train.py)
+CHAIN = (BodyPart("torso", r"^root$", None, None), BodyPart("limb", r"^limb$", "torso", "shoulder"),
+         BodyPart("hand", r"^hand$", "limb", "wrist"))
+
+
+def synthetic_body(hidden_cap: bool = False):
+    """An ellipsoid along z (half-length 2) with bones root, limb, hand: the limb's subtree share is 1/2 at z = 0 and
+    the hand's at z = 1, both linear in z around there; ``hidden_cap``: the faces around the bottom pole hidden."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    verts = np.asarray(sphere.vertices) * [1.0, 1.0, 2.0]
+    z = verts[:, 2]
+    hand = np.clip(z - 0.5, 0, 1)  # 1/2 at z = 1
+    limb_subtree = np.clip(z + 0.5, 0, 1)  # 1/2 at z = 0
+    weights = np.stack([1 - limb_subtree, limb_subtree - hand, hand], 1)
+    faces = np.asarray(sphere.faces)
+    hidden = verts[faces][:, :, 2].mean(1) < -1.9 if hidden_cap else None
+    return verts, faces, weights, ["root", "limb", "hand"], hidden

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from conftest import CHAIN, synthetic_body
 
 from deepcurrents.cli.make_dataset import main
 from deepcurrents.data.body_partition import (
@@ -17,23 +18,6 @@ from deepcurrents.data.body_partition import (
 )
 from deepcurrents.data.human_parts import DatasetError
 from deepcurrents.geometry.topology import border_loops, surface_topology
-
-CHAIN = (BodyPart("torso", r"^root$", None, None), BodyPart("limb", r"^limb$", "torso", "shoulder"),
-         BodyPart("hand", r"^hand$", "limb", "wrist"))
-
-
-def synthetic_body(hidden_cap: bool = False):
-    """An ellipsoid along z (half-length 2) with bones root, limb, hand: the limb's subtree share is 1/2 at z = 0 and
-    the hand's at z = 1, both linear in z around there; ``hidden_cap``: the faces around the bottom pole hidden."""
-    sphere = trimesh.creation.icosphere(subdivisions=3)
-    verts = np.asarray(sphere.vertices) * [1.0, 1.0, 2.0]
-    z = verts[:, 2]
-    hand = np.clip(z - 0.5, 0, 1)  # 1/2 at z = 1
-    limb_subtree = np.clip(z + 0.5, 0, 1)  # 1/2 at z = 0
-    weights = np.stack([1 - limb_subtree, limb_subtree - hand, hand], 1)
-    faces = np.asarray(sphere.faces)
-    hidden = verts[faces][:, :, 2].mean(1) < -1.9 if hidden_cap else None
-    return verts, faces, weights, ["root", "limb", "hand"], hidden
 
 
 def test_subtree_shares_add_the_parts_below():

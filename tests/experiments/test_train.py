@@ -342,3 +342,47 @@ def test_suite_members_run_side_by_side_and_a_failing_one_is_named(tmp_path):
                                                               *tiny]})
     with hydra_context(), pytest.raises(UserInputError, match=r"^Suite member missing stopped: .*nowhere\.obj"):
         run_suite(cfg, tmp_path / "again", extra_overrides=[])
+
+
+@pytest.mark.slow
+def test_a_stitched_body_is_fitted_stitched_and_edited_from_its_checkpoints(tmp_path):
+    """experiment=stitched_body on a three-part body at tiny sizes: every part runs, the report writes the stitched
+    body; deepcurrents-edit-body then moves the shoulder: the limb and hand are carried rigidly (their meshes moved,
+    not refitted), the torso is refitted from its checkpoint (init_from), and the edited body is stitched again."""
+    from conftest import CHAIN, hydra_context, synthetic_body
+    from omegaconf import OmegaConf
+
+    from deepcurrents.data.body_edit import LoopMove
+    from deepcurrents.data.body_partition import partition_body, write_body
+    from deepcurrents.experiments.stitched import edit_body
+
+    verts, faces, weights, names, _ = synthetic_body()
+    folder = write_body(partition_body(verts * 0.4, faces, weights, names, parts=CHAIN), verts * 0.4, tmp_path / "b")
+    tiny = [*TINY, "trainer.max_steps=4", "callbacks.media=null", "data.num_surface_samples=64"]
+    cfg = compose_cfg(["experiment=stitched_body", f"suite.body={folder}", "suite.jobs=1"])
+    OmegaConf.set_struct(cfg, False)
+    cfg.suite.runs = [{"name": p.name, "overrides": ["experiment=recon_mesh", f"data.mesh={folder}/parts/{p.name}.ply",
+                                                     "data.normalize=true", *tiny]} for p in CHAIN]
+    with hydra_context():
+        train(cfg, out_dir=tmp_path / "run")
+    summary = json.loads((tmp_path / "run" / "stitched.json").read_text())
+    assert summary["parts"] == 3
+    assert (tmp_path / "run" / "body.ply").is_file() and (tmp_path / "run" / "body.png").is_file()
+    edited = edit_body(tmp_path / "run", "shoulder", LoopMove(rotate=20.0), tmp_path / "edit", steps=2)
+    assert edited["refit"] == ["torso"] and edited["moved_rigidly"] == ["limb", "hand"]
+    overrides = (tmp_path / "edit" / "torso" / ".hydra" / "overrides.yaml").read_text()
+    assert "init_from=" in overrides and "trainer.max_steps=2" in overrides
+    assert json.loads((tmp_path / "edit" / "torso" / "metrics.json").read_text())["steps"] == 2
+    # the carried limb is its first mesh moved by the rotation about the shoulder loop's centroid
+    import trimesh
+
+    from deepcurrents.data.body_partition import read_body
+
+    body = read_body(folder)
+    loop = next(v for n, _, v, _ in body.loops if n == "shoulder")
+    before = trimesh.load(tmp_path / "run" / "limb" / "mesh.ply", process=False)
+    after = trimesh.load(tmp_path / "edit" / "limb" / "mesh_body.ply", process=False)
+    moved = LoopMove(rotate=20.0).apply(np.asarray(before.vertices), loop)
+    np.testing.assert_allclose(after.vertices, moved, atol=1e-6)
+    for name in ("body.ply", "body.png", "edit.png", "stitched.json", "body/loops.json"):
+        assert (tmp_path / "edit" / name).is_file(), name

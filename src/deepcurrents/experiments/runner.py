@@ -11,8 +11,8 @@ A suite is declared in an experiment's config::
 
 The command line's own overrides (e.g. ``preset=cpu``, ``trainer=gpu``) are passed on to every member,
 except ``experiment=`` (each member names its own) and ``suite.*`` (the suite's own settings). Members run in this
-process, one after another, or with ``suite.jobs: N`` (or ``auto``: one per two cores, at most the members) in N
-processes side by side, each member a ``python -m deepcurrents.cli.train`` of its own overrides.
+process, one after another, or with ``suite.jobs: N`` (or ``auto``: one per core on a CPU, one on a GPU, at most the
+members) in N processes side by side, each member a ``python -m deepcurrents.cli.train`` of its own overrides.
 
 The command ``python train.py …`` (``deepcurrents.cli.train``) is a thin wrapper around :func:`train`.
 """
@@ -531,12 +531,19 @@ def _member_hint(out_dir: Path, name: str, overrides: list[str]) -> str:
             f"{command}`.")
 
 
-def suite_jobs(value: Any, members: int) -> int:
-    """``suite.jobs``: a positive integer as given, ``auto`` one process per two cores (each member's trainer
-    beside its loader worker), at most ``members``."""
+def suite_jobs(value: Any, members: int, on_gpu: bool = False) -> int:
+    """``suite.jobs``: a positive integer as given; ``auto`` one process per core on a CPU (each trains on one thread,
+    its loader worker beside it mostly waiting), one on a GPU (one card: the members one after another); at most
+    ``members``."""
     if value == "auto":
-        return max(1, min(members, available_cores() // 2))
+        return 1 if on_gpu else max(1, min(members, available_cores()))
     return min(positive_int("suite.jobs", value), max(1, members))
+
+
+def trains_on_gpu(cfg: DictConfig) -> bool:
+    """Whether a run's trainer trains on a GPU (``trainer.accelerator`` gpu or cuda, or auto with CUDA here)."""
+    accelerator = str(OmegaConf.select(cfg, "trainer.accelerator", default="auto"))
+    return accelerator in ("gpu", "cuda") or accelerator == "auto" and torch.cuda.is_available()
 
 
 def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], out_dir: Path,
@@ -595,7 +602,7 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
     check_suite_overrides(cfg, inherited)
     members = compose_members(cfg, inherited, out_dir)  # every member checked before the first one trains
     check_suite_variants(cfg, inherited, members)
-    jobs = suite_jobs(cfg.suite.get("jobs", 1), len(members))
+    jobs = suite_jobs(cfg.suite.get("jobs", 1), len(members), any(trains_on_gpu(c) for _, c in members.values()))
     if jobs > 1:
         results = run_members_in_processes(members, out_dir, jobs)
     else:

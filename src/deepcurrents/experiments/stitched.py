@@ -118,26 +118,39 @@ def _scaled(value, extent: float):
     return None if value is None else float(value) / extent
 
 
+# faces drawn in body.png: the stitched mesh decimated to about this many (a random share of the faces would speckle it)
+PICTURE_FACES = 60_000
+
+
 def draw_body(stitched: StitchedMesh, loops: list[SharedLoop], path: Path) -> None:
     """The stitched body from the front and from the back, its seams (the shared loops) in black."""
+    import gpytoolbox
+
     from deepcurrents.eval.plots import figure_pixels, plot_mesh
     from deepcurrents.eval.render.media import save_image
 
+    mesh = stitched.mesh
+    if len(mesh.faces) > PICTURE_FACES and stitched.topology is not None and stitched.topology.manifold:
+        verts, faces, _, _ = gpytoolbox.decimate(np.asarray(mesh.vertices), np.asarray(mesh.faces),
+                                                 num_faces=PICTURE_FACES)
+        mesh = trimesh.Trimesh(verts, faces, process=False)
     tiles = []
     for azimuth in (-90.0, 90.0):
-        fig = plot_mesh(stitched.mesh, [lp.vertices for lp in loops], elev=10.0, azim=azimuth, size=5.0)
+        fig = plot_mesh(mesh, [lp.vertices for lp in loops], elev=10.0, azim=azimuth, size=5.0)
         tiles.append(np.ascontiguousarray(figure_pixels(fig)[..., :3]))
     save_image(np.concatenate(tiles, axis=1), path)
 
 
-def _member_overrides(member_dir: Path) -> list[str]:
-    """The overrides a suite member ran with (its .hydra/overrides.yaml)."""
-    from deepcurrents.experiments.multirun import job_overrides
-
-    overrides = job_overrides(member_dir)
-    if not overrides:
-        raise UserInputError(f"'{member_dir}' is not a finished part of a stitched body (no .hydra/overrides.yaml).")
-    return overrides
+def _member_overrides(suite_dir: Path, name: str) -> list[str]:
+    """The overrides the suite's member ``name`` ran with (its suite.json)."""
+    path = suite_dir / "suite.json"
+    try:
+        members = {str(m["name"]): [str(o) for o in m["overrides"]] for m in json.loads(path.read_text())}
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise UserInputError(f"'{path}' does not list the stitched body's parts ({type(err).__name__}).") from None
+    if name not in members:
+        raise UserInputError(f"'{path}' has no part {name}.")
+    return members[name]
 
 
 def _model_frame(ckpt: Path) -> tuple[float, np.ndarray]:
@@ -159,13 +172,14 @@ def edit_body(suite_dir: str | Path, loop: str, move, out_dir: str | Path, carry
     from deepcurrents.experiments.run_dir import make_run_dir
     from deepcurrents.experiments.runner import run_members_in_processes, suite_jobs
 
-    suite_dir, out_dir = Path(suite_dir), make_run_dir(Path(out_dir))
+    suite_dir = Path(suite_dir)
     summary_path = suite_dir / "stitched.json"
     if not summary_path.is_file():
         raise UserInputError(f"'{suite_dir}' is not a stitched body's folder (no stitched.json); run "
                              "`python train.py experiment=stitched_body` first.")
     body = read_body(json.loads(summary_path.read_text())["body"])
-    verts, refit, rigid = move_loop(body, loop, move, carry)
+    verts, refit, rigid = move_loop(body, loop, move, carry)  # a bad loop or move is said before anything is written
+    out_dir = make_run_dir(Path(out_dir))
     names = list(body.parts)
     edited = write_body_files(out_dir / "body", verts, body.body_faces, body.face_part, names,
                               {n: body.parts[n].get("parent") for n in names},
@@ -183,13 +197,13 @@ def edit_body(suite_dir: str | Path, loop: str, move, out_dir: str | Path, carry
         model_target.parent.mkdir(parents=True, exist_ok=True)
         in_frame = (np.asarray(target.vertices) - offset) / scale
         trimesh.Trimesh(in_frame, target.faces, process=False).export(model_target)
-        keep = [o for o in _member_overrides(suite_dir / name)
+        keep = [o for o in _member_overrides(suite_dir, name)
                 if o.lstrip("+~").split("=", 1)[0] not in ("data.mesh", "data.normalize", "trainer.max_steps",
-                                                            "ckpt_path", "init_from", "hydra.run.dir")]
+                                                            "ckpt_path", "init_from", "hydra.run.dir", "torch_threads")]
         members[name] = ([*keep, f"data.mesh={model_target}", "data.normalize=false", f"trainer.max_steps={steps}",
                           f"init_from={ckpt}"], None)
     started = time.perf_counter()
-    run_members_in_processes(members, out_dir, max(2, suite_jobs(jobs, len(members))) if len(members) > 1 else 2)
+    run_members_in_processes(members, out_dir, suite_jobs(jobs, len(members)))
     refit_seconds = time.perf_counter() - started
     results = []
     old_loop = next(v for n, _, v, _ in body.loops if n == loop)
