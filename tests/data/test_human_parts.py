@@ -385,7 +385,8 @@ def test_make_dataset_refuses_an_empty_category_list(tmp_path, capsys):
         main(["--source", "faust", "--faust-root", str(tmp_path), "--out", str(tmp_path / "out"), "--categories"])
     message = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.value.code == 2
-    assert message.endswith(f"error: --categories needs at least one of {', '.join(CATEGORIES)}.")
+    assert message.endswith(f"error: --categories needs at least one of {', '.join(CATEGORIES)} (or give "
+                            "--whole-bodies N).")
     assert not (tmp_path / "out").exists()
 
 
