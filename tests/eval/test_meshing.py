@@ -736,15 +736,23 @@ class PerforatedDisk(torch.nn.Module):
         return (torch.zeros(len(x)), w.float()) if omega else torch.zeros(len(x))
 
 
-def test_the_tube_stays_narrower_than_the_gap_between_two_loops(monkeypatch):
+@pytest.mark.parametrize("resolution, refine", [(144, True), (80, True), (80, False)])
+def test_the_tube_stays_narrower_than_the_gap_between_two_loops(monkeypatch, caplog, resolution, refine):
     """Two holes whose rims pass 0.06 apart, less than two 0.04 tubes: cut with the whole tube, their holes joined
     into one and each rim's strip fanned across the other's. The tube is now at most 0.4 of the gap: each hole is
-    zipped onto its own rim, and the mesh is the perforated disk's polygon area, manifold, with three borders."""
+    zipped onto its own rim, and the mesh is the perforated disk's polygon area, manifold, with three borders. A grid
+    whose 1.5 cells exceed that (80 over the box: 0.025-wide cells) is refined until they fit, or, not refined, cuts a
+    tube under 1.5 cells, said."""
     monkeypatch.setitem(METHODS, "flat_plane", FlatPlane)
     current = PerforatedDisk(gap=0.06)
     loops = [lp.double().numpy() for lp in current.loops]
-    result = extract_surface(current, resolution=144, method="flat_plane", bounds=np.array([[-1, -1, -0.2],
-                                                                                            [1, 1, 0.2]]))
+    with caplog.at_level("INFO", logger="deepcurrents.eval.meshing.surface"):
+        result = extract_surface(current, resolution=resolution, method="flat_plane", refine_aliased=refine,
+                                 bounds=np.array([[-1, -1, -0.2], [1, 1, 0.2]]))
+    if resolution == 80:
+        said = ("Two loops of Γ are 0.06 apart, under 3.75 cells of the resolution=80 grid" if refine
+                else "the boundary tube is 0.024, under 1.5 cells of the resolution=80 grid")
+        assert said in caplog.text
     mesh = result.mesh
     assert result.zipped_loops == 3
     polygon = [0.5 * abs(np.cross(lp, np.roll(lp, -1, 0)).sum(0)[2]) for lp in loops]

@@ -551,11 +551,41 @@ def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], o
     """The members in ``jobs`` processes side by side (``python -m deepcurrents.cli.train`` each, its output in
     ``<member>/suite_member.log``); results in the members' order. A member that fails ends the suite with its own
     sentence once the members running beside it have finished."""
+    import signal
     import subprocess
 
     pending = list(members.items())
     running: dict[str, tuple[subprocess.Popen, Any]] = {}
     failed: list[str] = []
+
+    def stop_members(signum, frame):  # SIGTERM to the suite reaches its members (they checkpoint and stop)
+        for proc, _ in running.values():
+            proc.send_signal(signum)
+        for proc, _ in running.values():
+            proc.wait()
+        raise SystemExit(143)
+
+    before = signal.signal(signal.SIGTERM, stop_members)
+    try:
+        _run_members(members, out_dir, jobs, pending, running, failed)
+    finally:
+        signal.signal(signal.SIGTERM, before)
+    if failed:
+        raise UserInputError(failed[0])
+    results = []
+    for name, (overrides, _) in members.items():
+        path = out_dir / name / "metrics.json"
+        metrics = json.loads(path.read_text()) if path.is_file() else {}
+        results.append({"name": name, "overrides": overrides, "dir": str(out_dir / name), "metrics": metrics})
+    return results
+
+
+def _run_members(members: dict[str, tuple[list[str], DictConfig]], out_dir: Path, jobs: int, pending: list,
+                 running: dict, failed: list[str]) -> None:
+    """The loop of ``run_members_in_processes``: starts members while fewer than ``jobs`` run, collects the ones
+    that end."""
+    import subprocess
+
     while pending or running:
         while pending and len(running) < jobs and not failed:
             name, (overrides, _) = pending.pop(0)
@@ -582,14 +612,6 @@ def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], o
                               f"{_member_hint(out_dir, name, members[name][0])})")
             else:
                 log.info("suite member %s finished", name)
-    if failed:
-        raise UserInputError(failed[0])
-    results = []
-    for name, (overrides, _) in members.items():
-        path = out_dir / name / "metrics.json"
-        metrics = json.loads(path.read_text()) if path.is_file() else {}
-        results.append({"name": name, "overrides": overrides, "dir": str(out_dir / name), "metrics": metrics})
-    return results
 
 
 def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:

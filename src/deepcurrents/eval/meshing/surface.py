@@ -298,24 +298,38 @@ def _say_widened_tube(settings: MeshSettings, voxel: float, tube: float, said: s
 
 
 # The tube around Γ is at most this share of the smallest gap between two loops of Γ: wider, the cut around two close
-# loops (a torso's hips, 5 % of its box apart) joins their holes into one, and each loop's strip then fans across it.
+# loops (a torso's hips, 3–5 % of its box apart) joins their holes into one, and each loop's strip then fans across it.
 LOOP_GAP_SHARE = 0.4
 
 
-def _tube_radius(s: MeshSettings, voxel: float, loops: list[np.ndarray], said: set | None) -> float:
-    """τ: ``boundary_tube``, at least 1.5 voxels, at most ``LOOP_GAP_SHARE`` of the gap between two loops of Γ (or
-    1.5 voxels where that is less, with a warning: the grid cannot keep those loops apart)."""
+def _tube_radius(s: MeshSettings, voxel: float, gap: float, said: set | None) -> float:
+    """τ: ``boundary_tube``, at least 1.5 voxels, and at most ``LOOP_GAP_SHARE`` of the gap between two loops of Γ,
+    even where that is under 1.5 voxels (said once: such a grid, which could not be refined, places those loops'
+    borders less well; joined holes would be worse)."""
     tube = max(s.boundary_tube, 1.5 * voxel)
-    gap = loop_gap(loops) if len(loops) > 1 else np.inf
     if tube <= LOOP_GAP_SHARE * gap:
         return tube
-    narrowed = max(LOOP_GAP_SHARE * gap, 1.5 * voxel)
-    if narrowed > LOOP_GAP_SHARE * gap and (said is None or "gap" not in said):
-        log.warning("Two loops of Γ are %.3g apart, so close that the boundary tube (at least 1.5 cells, %.3g) joins "
-                    "them; raise %s to keep them apart.", gap, narrowed, s.resolution_key)
+    narrowed = LOOP_GAP_SHARE * gap
+    if narrowed < 1.5 * voxel and (said is None or "gap" not in said):
+        log.warning("Two loops of Γ are %.3g apart, so the boundary tube is %.3g, under 1.5 cells of the %s=%d grid, "
+                    "to keep their holes apart; a finer %s places their borders better.", gap, narrowed,
+                    s.resolution_key, s.resolution, s.resolution_key)
         if said is not None:
             said.add("gap")
     return narrowed
+
+
+def _resolution_for_gap(bounds: np.ndarray, s: MeshSettings, voxel: float, gap: float) -> int | None:
+    """The resolution whose cells make 1.5 of them fit in ``LOOP_GAP_SHARE`` of the loops' gap, where this grid's do
+    not and that grid fits in memory; else None."""
+    if 1.5 * voxel <= LOOP_GAP_SHARE * gap or not np.isfinite(gap):
+        return None
+    finer = math.ceil(s.resolution * 1.5 * voxel / (LOOP_GAP_SHARE * gap))
+    try:
+        grid_shape(bounds, finer, s.resolution_key)  # the memory check only
+    except ConfigError:
+        return None
+    return finer
 
 
 def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.ndarray, settings: MeshSettings,
@@ -324,9 +338,12 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
     with ``refine``, asks for a finer grid (``_Refine``) where this one is too coarse and a finer one fits."""
     s = settings
     nodes, shape, voxel = _grid(bounds, s.resolution, s.resolution_key)
+    gap = loop_gap(loops) if s.close_boundary and len(loops) > 1 else np.inf
+    if refine and (finer := _resolution_for_gap(bounds, s, voxel, gap)) is not None:
+        return _Refine(f"Two loops of Γ are {gap:.3g} apart, under 3.75 cells", "would leave their holes joined by the tube", finer)
     dev = device_of(current)
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
-    tube = _tube_radius(s, voxel, loops, said) if s.close_boundary else 0.0
+    tube = _tube_radius(s, voxel, gap, said) if s.close_boundary else 0.0
     aliased = getattr(finder, "aliased_points", None)
     if refine and aliased is not None and len(aliased):
         starts, ends, _ = closed_loop_segments(loops)  # next to Γ Ω/2 turns fast anyway, and the tube is cut
