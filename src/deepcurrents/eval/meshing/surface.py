@@ -340,7 +340,8 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
     nodes, shape, voxel = _grid(bounds, s.resolution, s.resolution_key)
     gap = loop_gap(loops) if s.close_boundary and len(loops) > 1 else np.inf
     if refine and (finer := _resolution_for_gap(bounds, s, voxel, gap)) is not None:
-        return _Refine(f"Two loops of Γ are {gap:.3g} apart, under 3.75 cells", "would leave their holes joined by the tube", finer)
+        return _Refine(f"Two loops of Γ are {gap:.3g} apart, under 3.75 cells",
+                       "would leave their holes joined by the tube", finer)
     dev = device_of(current)
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
     tube = _tube_radius(s, voxel, gap, said) if s.close_boundary else 0.0
