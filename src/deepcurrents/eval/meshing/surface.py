@@ -305,24 +305,32 @@ LOOP_GAP_SHARE = 0.4
 def _tube_radius(s: MeshSettings, voxel: float, gap: float, said: set | None) -> float:
     """τ: ``boundary_tube``, at least 1.5 voxels, and at most ``LOOP_GAP_SHARE`` of the gap between two loops of Γ,
     even where that is under 1.5 voxels (said once: such a grid, which could not be refined, places those loops'
-    borders less well; joined holes would be worse)."""
+    borders less well; joined holes would be worse), but not under half a voxel: loops that touch at the grid's
+    scale (or truly touch) keep the whole tube, said once too."""
     tube = max(s.boundary_tube, 1.5 * voxel)
     if tube <= LOOP_GAP_SHARE * gap:
         return tube
     narrowed = LOOP_GAP_SHARE * gap
-    if narrowed < 1.5 * voxel and (said is None or "gap" not in said):
-        log.warning("Two loops of Γ are %.3g apart, so the boundary tube is %.3g, under 1.5 cells of the %s=%d grid, "
-                    "to keep their holes apart; a finer %s places their borders better.", gap, narrowed,
-                    s.resolution_key, s.resolution, s.resolution_key)
+    if narrowed < 0.5 * voxel:
+        why = f"Two loops of Γ come within {gap:.3g}, under a cell of the {s.resolution_key}={s.resolution} grid: " \
+              "the boundary tube cannot keep their holes apart there"
+    elif narrowed < 1.5 * voxel:
+        why = (f"Two loops of Γ are {gap:.3g} apart, so the boundary tube is {narrowed:.3g}, under 1.5 cells of the "
+               f"{s.resolution_key}={s.resolution} grid, to keep their holes apart; a finer {s.resolution_key} places "
+               "their borders better")
+    else:
+        return narrowed
+    if said is None or "gap" not in said:
+        log.warning("%s.", why)
         if said is not None:
             said.add("gap")
-    return narrowed
+    return tube if narrowed < 0.5 * voxel else narrowed
 
 
 def _resolution_for_gap(bounds: np.ndarray, s: MeshSettings, voxel: float, gap: float) -> int | None:
     """The resolution whose cells make 1.5 of them fit in ``LOOP_GAP_SHARE`` of the loops' gap, where this grid's do
-    not and that grid fits in memory; else None."""
-    if 1.5 * voxel <= LOOP_GAP_SHARE * gap or not np.isfinite(gap):
+    not, that is at most twice this one and fits in memory; else None."""
+    if 1.5 * voxel <= LOOP_GAP_SHARE * gap or not np.isfinite(gap) or 1.5 * voxel > 2 * LOOP_GAP_SHARE * gap:
         return None
     finer = math.ceil(s.resolution * 1.5 * voxel / (LOOP_GAP_SHARE * gap))
     try:
