@@ -80,7 +80,8 @@ def build(args: argparse.Namespace) -> None:
 
 
 def write_bodies(args: argparse.Namespace) -> None:
-    """``--whole-bodies N``: the first N bodies of ``--seed`` (the same people as the parts NNN), each partitioned."""
+    """``--whole-bodies N``: N bodies of ``--seed`` (random phenotypes and mild poses, as for the parts), each
+    partitioned."""
     partition, bodies = anny_body_partition(args.whole_bodies, args.seed)
     root = Path(args.out).expanduser() / "anny" / "bodies"
     meta = {"generator": "anny", "seed": args.seed}
