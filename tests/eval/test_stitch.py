@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from deepcurrents.eval.meshing.stitch import SharedLoop, loop_parameter, stitch_parts
-from deepcurrents.experiments.stitched import consistently_oriented
+from deepcurrents.geometry.topology import consistently_oriented
 
 N = 12
 LOOP = np.stack([np.cos(2 * np.pi * np.arange(N) / N), np.sin(2 * np.pi * np.arange(N) / N), np.zeros(N)], 1)

@@ -179,6 +179,13 @@ def poison_the_loss(monkeypatch) -> dict:
     return calls
 
 
+def assert_last_good_checkpoint(run_dir, step: int) -> None:
+    """The run's last.ckpt is the one of ``step`` and holds finite weights only."""
+    ckpt = torch.load(run_dir / "checkpoints/last.ckpt", weights_only=False)
+    assert ckpt["global_step"] == step
+    assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())
+
+
 def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, monkeypatch):
     from deepcurrents.errors import NonFiniteLossError
 
@@ -187,9 +194,7 @@ def test_nan_loss_stops_with_message_and_keeps_last_good_checkpoint(tmp_path, mo
     with pytest.raises(NonFiniteLossError, match=r"step 4; training stopped, and the last good checkpoint is kept "
                                                  r"in .*checkpoints \(try a lower model\.optim\.lr\)\.$"):
         train(cfg, out_dir=tmp_path)
-    ckpt = torch.load(tmp_path / "checkpoints/last.ckpt", weights_only=False)
-    assert ckpt["global_step"] == 3
-    assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())
+    assert_last_good_checkpoint(tmp_path, step=3)
     calls["n"] = 10  # NaN from the first step: it said a last good checkpoint was kept where none had been written
     with pytest.raises(NonFiniteLossError, match=r"step 0; training stopped, and no checkpoint had been written yet"):
         train(cfg, out_dir=tmp_path / "fresh")
@@ -206,9 +211,7 @@ def test_a_deferred_finiteness_check_names_the_step_and_keeps_the_last_good_chec
     with pytest.raises(NonFiniteLossError, match=r"^The loss became nan at step 4; training stopped, and the last "
                                                  r"good checkpoint is kept in .*checkpoints"):
         train(cfg, out_dir=tmp_path)
-    ckpt = torch.load(tmp_path / "checkpoints/last.ckpt", weights_only=False)
-    assert ckpt["global_step"] == 3
-    assert all(torch.isfinite(v).all() for v in ckpt["state_dict"].values() if v.is_floating_point())
+    assert_last_good_checkpoint(tmp_path, step=3)
 
 
 def test_a_deferred_check_changes_no_number_of_a_finite_run(tmp_path):

@@ -35,7 +35,7 @@ import trimesh
 from scipy.sparse.csgraph import connected_components
 
 from deepcurrents.data.human_parts import DatasetError
-from deepcurrents.data.human_parts_builder import _pinched_vertices, _snap_values, _split_at_zero
+from deepcurrents.data.human_parts_builder import _pinched_vertices, _snap_values, _split_at_zero, largest_component
 from deepcurrents.geometry.topology import border_loops, surface_topology
 
 
@@ -97,8 +97,9 @@ def subtree_shares(bone_weights: np.ndarray, bone_names: Sequence[str],
         raise DatasetError(f"Bone '{np.asarray(bone_names)[owner < 0][0]}' belongs to no body part.")
     own = np.stack([bone_weights[:, owner == j].sum(1) for j in range(len(parts))], 1)
     index = {p.name: j for j, p in enumerate(parts)}
+    depth = _depths(parts)
     shares = own.copy()
-    for p in sorted(parts, key=lambda q: -_depths(parts)[q.name]):  # leaves first: add each subtree to its parent
+    for p in sorted(parts, key=lambda q: -depth[q.name]):  # leaves first: add each subtree to its parent
         if p.parent is not None:
             shares[:, index[p.parent]] += shares[:, index[p.name]]
     return shares
@@ -127,16 +128,17 @@ class BodyPartition:
         return used, np.searchsorted(used, sub)
 
 
-def _edge_face_pairs(faces: np.ndarray) -> np.ndarray:
-    """The pairs of faces that share an edge. (F, 3) → (E, 2)."""
-    return trimesh.graph.face_adjacency(faces)
+def _face_of_edge(faces: np.ndarray) -> dict[tuple[int, int], int]:
+    """The face each directed edge (a, b) belongs to, as its faces run. (F, 3) → {(a, b): face}."""
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).tolist()
+    return dict(zip(map(tuple, directed), np.tile(np.arange(len(faces)), 3).tolist(), strict=True))
 
 
 def _reassign_islands(faces: np.ndarray, part: np.ndarray) -> np.ndarray:
     """Each part kept to its largest edge-connected piece: a smaller piece goes to the part it shares most edges
     with."""
     part = part.copy()
-    pairs = _edge_face_pairs(faces)
+    pairs = trimesh.graph.face_adjacency(faces)
     for _ in range(10):
         same = part[pairs[:, 0]] == part[pairs[:, 1]]
         graph = scipy.sparse.coo_matrix((np.ones(same.sum()), (pairs[same, 0], pairs[same, 1])),
@@ -169,15 +171,12 @@ def _cap_openings(weights: scipy.sparse.csr_matrix, faces: np.ndarray, part: np.
     """Each border loop closed by a fan to its centroid (a new weights row, the mean of the loop's rows), the fan's
     faces given to the part of the faces along the loop."""
     rows, new_faces, new_part = [weights], [faces], [part]
-    border_part = {}
-    for f, tri in enumerate(faces):
-        for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])):
-            border_part[(a, b)] = part[f]
+    face_of_edge = _face_of_edge(faces)
     n = weights.shape[0]
     for loop in border_loops(faces):
         centre = n + len(rows) - 1
         rows.append(scipy.sparse.csr_matrix(weights[loop].mean(0)))
-        owners = [border_part[(a, b)] for a, b in zip(loop, np.roll(loop, -1), strict=True)]
+        owners = [part[face_of_edge[(a, b)]] for a, b in zip(loop.tolist(), np.roll(loop, -1).tolist(), strict=True)]
         new_faces.append(np.stack([np.roll(loop, -1), loop, np.full(len(loop), centre)], 1))
         new_part.append(np.full(len(loop), np.bincount(owners).argmax()))
     return (scipy.sparse.vstack(rows).tocsr(), np.concatenate(new_faces).astype(np.int64),
@@ -189,10 +188,7 @@ def _shared_loops(faces: np.ndarray, part: np.ndarray, parts: Sequence[BodyPart]
     """Every border loop between a part and its parent, as the child's border runs; DatasetError for a border
     between parts that do not hang from each other, or a part whose loops are not its joint's."""
     names = [p.name for p in parts]
-    face_of_edge = {}
-    for f, tri in enumerate(faces):
-        for a, b in ((tri[0], tri[1]), (tri[1], tri[2]), (tri[2], tri[0])):
-            face_of_edge[(a, b)] = f
+    face_of_edge = _face_of_edge(faces)
     loops = []
     for j, p in enumerate(parts):
         if p.parent is None:
@@ -200,7 +196,8 @@ def _shared_loops(faces: np.ndarray, part: np.ndarray, parts: Sequence[BodyPart]
         children = {q.name for q in parts if q.parent == p.name}
         to_parent = []
         for loop in border_loops(faces[part == j]):
-            across = {names[part[face_of_edge[(b, a)]]] for a, b in zip(loop, np.roll(loop, -1), strict=True)}
+            across = {names[part[face_of_edge[(b, a)]]]
+                      for a, b in zip(loop.tolist(), np.roll(loop, -1).tolist(), strict=True)}
             if len(across) != 1 or not across <= children | {p.parent}:
                 raise DatasetError(f"A border of {p.name} meets {', '.join(sorted(across))}, where {p.name} meets only "
                                    f"{', '.join(sorted(children | {p.parent}))}, each along one loop: the skinning "
@@ -252,10 +249,7 @@ def partition_body(vertices: np.ndarray, faces: np.ndarray, bone_weights: np.nda
                     [i for i, p in enumerate(parts) if p.parent is None][0])
     # the visible body: hidden faces and the pieces they leave (the eyeballs) dropped
     faces, part = faces[~hidden], part[~hidden]
-    pairs = _edge_face_pairs(faces)
-    graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(faces),) * 2)
-    _, piece = connected_components(graph, directed=False)
-    keep = piece == np.bincount(piece).argmax()
+    keep = largest_component(faces)
     faces, part = faces[keep], part[keep]
     used = np.unique(faces)
     weights, faces = weights[used], np.searchsorted(used, faces)

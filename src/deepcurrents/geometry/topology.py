@@ -115,6 +115,14 @@ class SurfaceTopology:
         return f"{name} ({facts})"
 
 
+def consistently_oriented(faces: np.ndarray) -> bool:
+    """Whether no directed edge is run by two faces: every edge with two faces is run in opposite directions by them.
+    faces (F, 3)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    return len(np.unique(directed, axis=0)) == len(directed)
+
+
 def surface_topology(faces: np.ndarray) -> SurfaceTopology:
     """``SurfaceTopology`` of a triangle mesh from its faces (F, 3) alone (unused vertices do not count)."""
     from scipy.sparse import coo_matrix
@@ -125,7 +133,7 @@ def surface_topology(faces: np.ndarray) -> SurfaceTopology:
     local = local.reshape(faces.shape)
     directed = np.concatenate([local[:, [0, 1]], local[:, [1, 2]], local[:, [2, 0]]])
     undirected, counts = np.unique(np.sort(directed, 1), axis=0, return_counts=True)
-    manifold = bool(counts.max(initial=0) <= 2 and len(np.unique(directed, axis=0)) == len(directed))
+    manifold = bool(counts.max(initial=0) <= 2 and consistently_oriented(faces))
     n = len(used)
     graph = coo_matrix((np.ones(len(undirected)), (undirected[:, 0], undirected[:, 1])), shape=(n, n))
     components = int(connected_components(graph, directed=False)[0]) if n else 0

@@ -178,8 +178,10 @@ def stitch_parts(parts: Mapping[str, trimesh.Trimesh], loops: Sequence[SharedLoo
         index[off] = offset + np.arange(off.sum())
         offset += int(off.sum())
         all_vertices.append(verts[off])
-        new_faces = []
-        for tri in faces:
+        # faces off the seams are only renumbered; those on a border edge that passes over seam vertices are split
+        on_seam = np.isin(faces, np.unique([a for a, _ in inserts])).any(1) if inserts else np.zeros(len(faces), bool)
+        new_faces = [tuple(f) for f in index[faces[~on_seam]]]
+        for tri in faces[on_seam]:
             chains = [inserts.get((int(tri[e]), int(tri[(e + 1) % 3])), []) for e in range(3)]
             split = [e for e in range(3) if chains[e]]
             if not split:
