@@ -389,3 +389,14 @@ def test_a_stitched_body_is_fitted_stitched_and_edited_from_its_checkpoints(tmp_
     np.testing.assert_allclose(after.vertices, moved, atol=1e-6)
     for name in ("body.ply", "body.png", "edit.png", "stitched.json", "body/loops.json"):
         assert (tmp_path / "edit" / name).is_file(), name
+
+
+def test_a_stitched_body_without_its_loops_is_refused_before_any_part_trains(tmp_path):
+    from conftest import hydra_context
+
+    from deepcurrents.data.human_parts import DatasetError
+
+    cfg = compose_cfg(["experiment=stitched_body", f"suite.body={tmp_path / 'nobody'}", *TINY])
+    with hydra_context(), pytest.raises(DatasetError, match=r"has no loops\.json; run `make data`"):
+        train(cfg, out_dir=tmp_path / "run")
+    assert not (tmp_path / "run" / "torso").exists()

@@ -8,6 +8,7 @@ A suite is declared in an experiment's config::
         - {name: full, overrides: [experiment=recon_hand, ablation=full]}
         - {name: relu, overrides: [experiment=recon_hand, ablation=relu]}
       report: deepcurrents.experiments.tables.write_table  # callable(suite_dir, results, cfg) → writes files
+      check: null                            # optional callable(cfg): the report's own inputs, checked first
 
 The command line's own overrides (e.g. ``preset=cpu``, ``trainer=gpu``) are passed on to every member,
 except ``experiment=`` (each member names its own) and ``suite.*`` (the suite's own settings). Members run in this
@@ -550,7 +551,8 @@ def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], o
                              jobs: int) -> list[dict[str, Any]]:
     """The members in ``jobs`` processes side by side (``python -m deepcurrents.cli.train`` each, its output in
     ``<member>/suite_member.log``); results in the members' order. A member that fails ends the suite with its own
-    sentence once the members running beside it have finished."""
+    sentence once the members running beside it have finished; SIGTERM to the suite reaches the running members
+    (they checkpoint and stop)."""
     import signal
     import subprocess
 
@@ -558,7 +560,7 @@ def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], o
     running: dict[str, tuple[subprocess.Popen, Any]] = {}
     failed: list[str] = []
 
-    def stop_members(signum, frame):  # SIGTERM to the suite reaches its members (they checkpoint and stop)
+    def stop_members(signum, frame):
         for proc, _ in running.values():
             proc.send_signal(signum)
         for proc, _ in running.values():
@@ -567,7 +569,33 @@ def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], o
 
     before = signal.signal(signal.SIGTERM, stop_members)
     try:
-        _run_members(members, out_dir, jobs, pending, running, failed)
+        while pending or running:
+            while pending and len(running) < jobs and not failed:
+                name, (overrides, _) = pending.pop(0)
+                member_dir = make_run_dir(out_dir / name)
+                log.info("suite member %s (in its own process): %s", name, " ".join(overrides))
+                output = open(member_dir / "suite_member.log", "w")  # noqa: SIM115 (closed when the member ends)
+                # the cores shared out: torch's own choice in each process would count every core, and jobs × cores
+                # threads on the cores wait on each other
+                threads = [] if any(o.startswith("torch_threads=") for o in overrides) else \
+                    [f"torch_threads={max(1, available_cores() // jobs)}"]
+                command = [sys.executable, "-m", "deepcurrents.cli.train", *overrides, *threads,
+                           f"hydra.run.dir={member_dir}"]
+                running[name] = (subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT), output)
+            if not running:
+                break
+            time.sleep(0.5)
+            for name in [n for n, (proc, _) in running.items() if proc.poll() is not None]:
+                proc, output = running.pop(name)
+                output.close()
+                if proc.returncode != 0:
+                    log_file = out_dir / name / "suite_member.log"
+                    lines = log_file.read_text(errors="replace").strip().splitlines()
+                    why = lines[-1] if lines else f"exit status {proc.returncode}"
+                    failed.append(f"Suite member {name} stopped: {why} (its output: {log_file}; "
+                                  f"{_member_hint(out_dir, name, members[name][0])})")
+                else:
+                    log.info("suite member %s finished", name)
     finally:
         signal.signal(signal.SIGTERM, before)
     if failed:
@@ -580,40 +608,6 @@ def run_members_in_processes(members: dict[str, tuple[list[str], DictConfig]], o
     return results
 
 
-def _run_members(members: dict[str, tuple[list[str], DictConfig]], out_dir: Path, jobs: int, pending: list,
-                 running: dict, failed: list[str]) -> None:
-    """The loop of ``run_members_in_processes``: starts members while fewer than ``jobs`` run, collects the ones
-    that end."""
-    import subprocess
-
-    while pending or running:
-        while pending and len(running) < jobs and not failed:
-            name, (overrides, _) = pending.pop(0)
-            member_dir = make_run_dir(out_dir / name)
-            log.info("suite member %s (in its own process): %s", name, " ".join(overrides))
-            output = open(member_dir / "suite_member.log", "w")  # noqa: SIM115 (closed when the member ends)
-            # the cores shared out: torch's own choice in each process would count every core, and jobs × cores
-            # threads on the cores wait on each other
-            threads = [] if any(o.startswith("torch_threads=") for o in overrides) else \
-                [f"torch_threads={max(1, available_cores() // jobs)}"]
-            command = [sys.executable, "-m", "deepcurrents.cli.train", *overrides, *threads,
-                       f"hydra.run.dir={member_dir}"]
-            running[name] = (subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT), output)
-        if not running:
-            break
-        time.sleep(0.5)
-        for name in [n for n, (proc, _) in running.items() if proc.poll() is not None]:
-            proc, output = running.pop(name)
-            output.close()
-            if proc.returncode != 0:
-                lines = (out_dir / name / "suite_member.log").read_text(errors="replace").strip().splitlines()
-                why = lines[-1] if lines else f"exit status {proc.returncode}"
-                failed.append(f"Suite member {name} stopped: {why} (its output: {out_dir / name / 'suite_member.log'}; "
-                              f"{_member_hint(out_dir, name, members[name][0])})")
-            else:
-                log.info("suite member %s finished", name)
-
-
 def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None = None) -> list[dict[str, Any]]:
     """Runs every member of ``cfg.suite`` into ``out_dir/<name>`` and calls the report. → member results.
 
@@ -624,6 +618,8 @@ def run_suite(cfg: DictConfig, out_dir: Path, extra_overrides: list[str] | None 
     check_suite_overrides(cfg, inherited)
     members = compose_members(cfg, inherited, out_dir)  # every member checked before the first one trains
     check_suite_variants(cfg, inherited, members)
+    if cfg.suite.get("check"):  # the report's own inputs (a stitched body's folder), before any member trains
+        hydra.utils.get_method(cfg.suite.check)(cfg)
     jobs = suite_jobs(cfg.suite.get("jobs", 1), len(members), any(trains_on_gpu(c) for _, c in members.values()))
     if jobs > 1:
         results = run_members_in_processes(members, out_dir, jobs)

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import trimesh
+from omegaconf import OmegaConf
 
 from deepcurrents.data.body_partition import StitchedBody, read_body
 from deepcurrents.errors import UserInputError
@@ -26,6 +27,7 @@ from deepcurrents.eval.meshing.stitch import SharedLoop, StitchedMesh, loop_para
 from deepcurrents.eval.metrics import unidirectional_chamfer
 from deepcurrents.experiments.tables import write_table
 from deepcurrents.geometry.meshes import read_mesh
+from deepcurrents.geometry.topology import consistently_oriented
 
 log = logging.getLogger(__name__)
 
@@ -57,11 +59,10 @@ def seam_report(stitched: StitchedMesh, loops: list[SharedLoop]) -> dict[str, di
     return out
 
 
-def consistently_oriented(faces: np.ndarray) -> bool:
-    """Whether every edge with two faces is run in opposite directions by them."""
-    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    _, counts = np.unique(directed, axis=0, return_counts=True)
-    return bool((counts == 1).all())
+def check_body(cfg) -> None:
+    """``suite.check`` of experiment=stitched_body: the body folder is whole (``read_body``'s one sentence) before
+    any part trains."""
+    read_body(cfg.suite.body)
 
 
 def stitch_report(out_dir: Path, results: list[dict[str, Any]], cfg=None) -> dict[str, Any]:
@@ -179,6 +180,7 @@ def edit_body(suite_dir: str | Path, loop: str, move, out_dir: str | Path, carry
                              "`python train.py experiment=stitched_body` first.")
     body = read_body(json.loads(summary_path.read_text())["body"])
     verts, refit, rigid = move_loop(body, loop, move, carry)  # a bad loop or move is said before anything is written
+    jobs = suite_jobs(jobs, len(refit))
     out_dir = make_run_dir(Path(out_dir))
     names = list(body.parts)
     edited = write_body_files(out_dir / "body", verts, body.body_faces, body.face_part, names,
@@ -203,7 +205,7 @@ def edit_body(suite_dir: str | Path, loop: str, move, out_dir: str | Path, carry
         members[name] = ([*keep, f"data.mesh={model_target}", "data.normalize=false", f"trainer.max_steps={steps}",
                           f"init_from={ckpt}"], None)
     started = time.perf_counter()
-    run_members_in_processes(members, out_dir, suite_jobs(jobs, len(members)))
+    run_members_in_processes(members, out_dir, jobs)
     refit_seconds = time.perf_counter() - started
     results = []
     old_loop = next(v for n, _, v, _ in body.loops if n == loop)
@@ -219,14 +221,12 @@ def edit_body(suite_dir: str | Path, loop: str, move, out_dir: str | Path, carry
             mesh = read_mesh(suite_dir / name / "mesh.ply", "Part mesh")
             metrics = json.loads((suite_dir / name / "metrics.json").read_text())
             vertices = move.apply(np.asarray(mesh.vertices), old_loop) if name in rigid else np.asarray(mesh.vertices)
-            if name in rigid:
-                metrics = {k: v * move.scale if k.endswith("_input_units") and isinstance(v, float) else v
-                           for k, v in metrics.items()}
+            if name in rigid:  # distances scale with the move
+                scaled = ("ucd_input_units", "ucd_reverse_input_units")
+                metrics = {**metrics, **{k: metrics[k] * move.scale for k in scaled if k in metrics}}
         path = make_run_dir(out_dir / name) / "mesh_body.ply"
         trimesh.Trimesh(vertices, mesh.faces, process=False).export(path)
         results.append({"name": name, "dir": str(out_dir / name), "mesh": str(path), "metrics": metrics})
-    from omegaconf import OmegaConf
-
     metrics = stitch_report(out_dir, results, OmegaConf.create({"suite": {"body": str(edited)}}))
     metrics.update({"loop": loop, "carry": carry, "refit": refit, "moved_rigidly": rigid, "refit_steps": steps,
                     "refit_seconds": round(refit_seconds, 1)})
