@@ -15,6 +15,7 @@ from omegaconf import OmegaConf, open_dict
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.experiments.config import validate_config
+from deepcurrents.experiments.runner import member_overrides
 from deepcurrents.experiments.runner import build, train
 
 CONF = Path(CONF_DIR)
@@ -143,10 +144,11 @@ def test_every_suite_member_builds_and_the_report_imports(suite, inputs, body_pa
     cfg = composed(f"experiment={suite}", "preset=paper", *body)
     assert callable(get_object(cfg.suite.report))
     for run in cfg.suite.runs:
-        experiment = next(o.split("=", 1)[1] for o in run.overrides if o.startswith("experiment="))
+        own = member_overrides(run, [], cfg.suite.get("common"))
+        experiment = next(o.split("=", 1)[1] for o in own if o.startswith("experiment="))
         # a member's own overrides come last, as run_suite applies them (they name e.g. data.category)
         fills = [o for o in inputs.get(experiment, []) if not o.startswith("data.category=")]
-        member = [o for o in run.overrides if "wall_time_from" not in o]  # that file exists only in a suite
+        member = [o for o in own if "wall_time_from" not in o]  # that file exists only in a suite
         build_experiment([*fills, *member])
 
 

@@ -320,6 +320,22 @@ def test_init_from_starts_the_network_from_another_run_with_its_own_boundary(tmp
         warm_start(other, ckpt)
 
 
+def test_a_suites_common_overrides_come_before_each_members_own_and_the_command_line_last():
+    """suite.common reaches every member first, so a member's own and then the command line's overrides win (a user
+    can run experiment=stitched_body model.surface_weight=1 to see the paper's weight)."""
+    from omegaconf import OmegaConf
+
+    from deepcurrents.experiments.runner import member_overrides
+
+    member = OmegaConf.create({"name": "torso", "overrides": ["data.mesh=t.ply", "model.surface_weight=3"]})
+    got = member_overrides(member, ["model.surface_weight=1", "hydra.run.dir=x"],
+                           ["experiment=recon_mesh", "model.surface_weight=5"])
+    assert got == ["experiment=recon_mesh", "model.surface_weight=5", "data.mesh=t.ply", "model.surface_weight=3",
+                   "model.surface_weight=1"]
+    cfg = compose_cfg(got)
+    assert cfg.model.surface_weight == 1 and cfg.data.mesh == "t.ply"
+
+
 @pytest.mark.slow
 def test_suite_members_run_side_by_side_and_a_failing_one_is_named(tmp_path):
     """suite.jobs=2: members run as processes of their own (each `python -m deepcurrents.cli.train` with the cores
@@ -364,8 +380,7 @@ def test_a_stitched_body_is_fitted_stitched_and_edited_from_its_checkpoints(tmp_
     tiny = [*TINY, "trainer.max_steps=4", "callbacks.media=null", "data.num_surface_samples=64"]
     cfg = compose_cfg(["experiment=stitched_body", f"suite.body={folder}", "suite.jobs=1"])
     OmegaConf.set_struct(cfg, False)
-    cfg.suite.runs = [{"name": p.name, "overrides": ["experiment=recon_mesh", f"data.mesh={folder}/parts/{p.name}.ply",
-                                                     "data.normalize=true", *tiny]} for p in CHAIN]
+    cfg.suite.runs = [{"name": p.name, "overrides": [f"data.mesh={folder}/parts/{p.name}.ply", *tiny]} for p in CHAIN]
     with hydra_context():
         train(cfg, out_dir=tmp_path / "run")
     summary = json.loads((tmp_path / "run" / "stitched.json").read_text())

@@ -9,6 +9,7 @@ A suite is declared in an experiment's config::
         - {name: relu, overrides: [experiment=recon_hand, ablation=relu]}
       report: deepcurrents.experiments.tables.write_table  # callable(suite_dir, results, cfg) → writes files
       check: null                            # optional callable(cfg): the report's own inputs, checked first
+      common: []                             # optional overrides every member takes before its own
 
 The command line's own overrides (e.g. ``preset=cpu``, ``trainer=gpu``) are passed on to every member,
 except ``experiment=`` (each member names its own) and ``suite.*`` (the suite's own settings). Members run in this
@@ -412,7 +413,7 @@ def check_suite_overrides(cfg: DictConfig, inherited: list[str]) -> None:
         return
     problems = {}
     for member in cfg.suite.runs:
-        own = hydra.compose(config_name="train", overrides=list(member.overrides))
+        own = hydra.compose(config_name="train", overrides=member_overrides(member, [], cfg.suite.get("common")))
         problem = {}
         for key in PROBLEM_CHOICE_KEYS:
             value = OmegaConf.select(own, f"data.{key}", default=None)
@@ -429,10 +430,10 @@ def check_suite_overrides(cfg: DictConfig, inherited: list[str]) -> None:
                           "recon_mesh).")
 
 
-def member_overrides(member: DictConfig, inherited: list[str]) -> list[str]:
-    """A suite member's overrides: its own, then the command line's (Hydra's own settings left out), then its
-    ``final_overrides`` (what the member's role fixes whatever the command line says)."""
-    return (list(member.overrides) + [o for o in inherited if not o.startswith("hydra.")]
+def member_overrides(member: DictConfig, inherited: list[str], common: list[str] | None = None) -> list[str]:
+    """A suite member's overrides: the suite's ``common`` ones, its own, then the command line's (Hydra's own
+    settings left out), then its ``final_overrides`` (what the member's role fixes whatever the command line says)."""
+    return (list(common or []) + list(member.overrides) + [o for o in inherited if not o.startswith("hydra.")]
             + list(member.get("final_overrides") or []))
 
 
@@ -443,7 +444,7 @@ def compose_members(cfg: DictConfig, inherited: list[str], out_dir: Path) -> dic
     trained, in Hydra's words or as "a misspelt key". → {name: (overrides, config)}."""
     members = {}
     for member in cfg.suite.runs:
-        name, overrides = str(member.name), member_overrides(member, inherited)
+        name, overrides = str(member.name), member_overrides(member, inherited, cfg.suite.get("common"))
         if name in members:
             raise ConfigError(f"The suite names two members {name}; each needs its own name (its folder).")
         try:
@@ -504,10 +505,12 @@ def check_suite_variants(cfg: DictConfig, inherited: list[str],
     ReLU run, and the table and figure labelled them as five."""
     if not any(not o.startswith("hydra.") for o in inherited):
         return
-    own = {str(m.name): _leaves(hydra.compose(config_name="train", overrides=member_overrides(m, [])))
+    common = cfg.suite.get("common")
+    own = {str(m.name): _leaves(hydra.compose(config_name="train", overrides=member_overrides(m, [], common)))
            for m in cfg.suite.runs}
     given = {name: _leaves(member_cfg) for name, (_, member_cfg) in members.items()}
-    set_by_members = {o.lstrip("+~").split("=", 1)[0] for m in cfg.suite.runs for o in m.overrides}
+    set_by_members = {o.lstrip("+~").split("=", 1)[0]
+                      for m in cfg.suite.runs for o in member_overrides(m, [], common)}
     names = list(given)
     for i, a in enumerate(names):
         for b in names[i + 1:]:
