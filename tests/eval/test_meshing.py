@@ -742,7 +742,7 @@ def test_the_tube_stays_narrower_than_the_gap_between_two_loops(monkeypatch, cap
     into one and each rim's strip fanned across the other's. The tube is now at most 0.4 of the gap: each hole is
     zipped onto its own rim, and the mesh is the perforated disk's polygon area, manifold, with three borders. A grid
     whose 1.5 cells exceed that (80 over the box: 0.025-wide cells) is refined until they fit, or, not refined, cuts a
-    tube under 1.5 cells, said."""
+    tube under 1.5 cells, said. Only the two close rims get the narrower tube (``_tube_radii``)."""
     monkeypatch.setitem(METHODS, "flat_plane", FlatPlane)
     current = PerforatedDisk(gap=0.06)
     loops = [lp.double().numpy() for lp in current.loops]
@@ -751,7 +751,7 @@ def test_the_tube_stays_narrower_than_the_gap_between_two_loops(monkeypatch, cap
                                  bounds=np.array([[-1, -1, -0.2], [1, 1, 0.2]]))
     if resolution == 80:
         said = ("Two loops of Γ are 0.06 apart, under 3.75 cells of the resolution=80 grid" if refine
-                else "the boundary tube is 0.024, under 1.5 cells of the resolution=80 grid")
+                else "their boundary tube is 0.024, under 1.5 cells of the resolution=80 grid")
         assert said in caplog.text
     mesh = result.mesh
     assert result.zipped_loops == 3
@@ -761,6 +761,21 @@ def test_the_tube_stays_narrower_than_the_gap_between_two_loops(monkeypatch, cap
     _, counts = np.unique(edges, axis=0, return_counts=True)
     assert counts.max() == 2 and len(border_loops(np.asarray(mesh.faces))) == 3
     assert boundary_error(mesh, loops) < 1e-6
+
+
+def test_only_the_loops_close_to_another_get_a_narrower_tube_and_a_grid_is_refined_at_most_twice():
+    from deepcurrents.eval.meshing.surface import MeshSettings, _resolution_for_gap, _tube_radii
+
+    settings = MeshSettings(resolution=100, boundary_tube=0.04, method="level_set")
+    # loop gaps: the rim far from the two holes, the holes 0.06 apart (0.4 × 0.06 = 0.024 ≥ 1.5 cells of 0.01)
+    tubes = _tube_radii(settings, 0.01, np.array([0.3, 0.06, 0.06]), None)
+    np.testing.assert_allclose(tubes, [0.04, 0.024, 0.024])
+    # two loops under half a cell apart (they touch at the grid's scale) keep the whole tube
+    np.testing.assert_allclose(_tube_radii(settings, 0.01, np.array([0.3, 0.01, 0.01]), set()), [0.04] * 3)
+    bounds = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    assert _resolution_for_gap(bounds, settings, 0.02, 0.06) == 125  # 1.5 cells of 0.016 fit in 0.024
+    assert _resolution_for_gap(bounds, settings, 0.02, 0.02) == 200  # more would be needed: twice, not more
+    assert _resolution_for_gap(bounds, settings, 0.02, 0.3) is None
 
 
 def test_a_closed_piece_on_the_target_is_kept_a_bubble_off_it_dropped():
@@ -778,3 +793,32 @@ def test_a_closed_piece_on_the_target_is_kept_a_bubble_off_it_dropped():
     assert len(kept) == len(cavity.faces) and dropped == pytest.approx(bubble.area, rel=1e-12)
     _, dropped_both = _drop_closed_components(verts, faces)
     assert dropped_both == pytest.approx(cavity.area + bubble.area, rel=1e-12)
+
+
+def test_weak_caps_across_an_opening_are_dropped_weak_patches_inside_kept():
+    """An open cylinder (Γ: its two rims) whose level set also spans the bottom opening with a cap: the cap carries a
+    tenth of the wall's |ω| and reaches the tube about the bottom rim, so it is dropped; a weak patch in the middle of
+    the wall (a thin fingertip's) reaches no tube and is kept, as is everything with weak_share 0."""
+    from deepcurrents.eval.meshing.surface import _drop_weak_caps
+
+    wall = trimesh.creation.cylinder(radius=0.3, height=0.6, sections=48)
+    wall = wall.subdivide().subdivide()
+    normals = np.abs(wall.face_normals[:, 2])
+    sides = normals < 0.5
+    cap = wall.triangles_center[:, 2] < -0.29
+    faces = np.asarray(wall.faces)[sides | cap]
+    centres = wall.triangles_center[sides | cap]
+    is_cap = cap[sides | cap]
+    strength = np.where(is_cap, 0.1, 1.0)
+    patch = (np.abs(centres[:, 2]) < 0.05) & (centres[:, 0] > 0.25)
+    strength[patch] = 0.1
+    angles = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    rims = [np.stack([0.3 * np.cos(angles), 0.3 * np.sin(angles), np.full(48, z)], 1) for z in (-0.3, 0.3)]
+    verts = np.asarray(wall.vertices)
+    kept = _drop_weak_caps(verts, faces, strength, rims, np.array([0.03, 0.03]), 0.01, 0.5)
+    assert len(kept) == len(faces) - is_cap.sum()
+    kept_rows = {tuple(f) for f in kept}
+    assert all(tuple(f) in kept_rows for f in faces[patch]) and patch.any()
+    assert not any(tuple(f) in kept_rows for f in faces[is_cap])
+    assert len(_drop_weak_caps(verts, faces, np.ones(len(faces)), rims, np.array([0.03, 0.03]), 0.01, 0.5)) \
+        == len(faces)

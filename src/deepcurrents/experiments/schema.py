@@ -369,6 +369,8 @@ class MeshEvaluation:
                                      integer())
     level_blend: float = setting(0.0, "level_set: distance to Γ within which the level follows f along Γ",
                                  nonnegative)
+    weak_share: float = setting(0.0, "drop regions reaching Γ's tube whose |ω| is under this share of the median "
+                                "face's (caps across openings; 0: off)", between(0, 1))
     polish: Polish = group(Polish, "the minimal surface's mesh flow")
 
 

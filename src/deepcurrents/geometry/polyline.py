@@ -206,12 +206,19 @@ def sample_tube(starts: torch.Tensor, ends: torch.Tensor, radius: float, n: int,
     return x, tube_density(x, starts, ends, radius)
 
 
-def loop_gap(loops: Sequence[np.ndarray]) -> float:
-    """The smallest distance between two different closed loops (each (M_i, 3)): from any vertex of one to any
-    segment of another; ``inf`` for a single loop."""
-    gap = np.inf
+def loop_gaps(loops: Sequence[np.ndarray]) -> np.ndarray:
+    """For each closed loop (M_i, 3), the smallest distance from it to another loop (from any vertex of one to any
+    segment of the other, both ways); ``inf`` for a single loop. → (L,)."""
+    gaps = np.full(len(loops), np.inf)
     for i, a in enumerate(loops):
-        for b in loops[i + 1:]:
-            b = np.asarray(b, np.float64)
-            gap = min(gap, float(closest_on_segments(np.asarray(a, np.float64), b, np.roll(b, -1, 0))[0].min()))
-    return gap
+        for j, b in enumerate(loops):
+            if j != i:
+                b = np.asarray(b, np.float64)
+                d = float(closest_on_segments(np.asarray(a, np.float64), b, np.roll(b, -1, 0))[0].min())
+                gaps[i], gaps[j] = min(gaps[i], d), min(gaps[j], d)
+    return gaps
+
+
+def loop_gap(loops: Sequence[np.ndarray]) -> float:
+    """The smallest distance between two different closed loops (each (M_i, 3)); ``inf`` for a single loop."""
+    return float(loop_gaps(loops).min()) if len(loops) else np.inf

@@ -20,6 +20,7 @@ too (a larger one is more likely a torn part of the surface, and is kept for ``b
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -84,12 +85,20 @@ def clip_by_field(vertices: np.ndarray, faces: np.ndarray, values: np.ndarray) -
     return np.concatenate([vertices, cut_pts]), out
 
 
-def cut_tube(vertices: np.ndarray, faces: np.ndarray, loops: list[np.ndarray], tube: float
+def cut_tube(vertices: np.ndarray, faces: np.ndarray, loops: list[np.ndarray], tube: float | Sequence[float]
              ) -> tuple[np.ndarray, np.ndarray]:
     """The part of a mesh farther than ``tube`` from Γ (loops (M_i, 3)), clipped exactly on the tube's
-    surface (``clip_by_field`` of the distance to Γ minus τ). → (vertices (V', 3), faces (F', 3))."""
-    starts, ends, _ = closed_loop_segments(loops)
-    return clip_by_field(vertices, faces, segment_distance(vertices, starts, ends) - tube)
+    surface (``clip_by_field`` of min_i (distance to loop i − τ_i)); ``tube`` one radius or one per loop.
+    → (vertices (V', 3), faces (F', 3))."""
+    tubes = np.broadcast_to(np.asarray(tube, np.float64), (len(loops),))
+    if np.all(tubes == tubes[0]):
+        starts, ends, _ = closed_loop_segments(loops)
+        return clip_by_field(vertices, faces, segment_distance(vertices, starts, ends) - tubes[0])
+    field = np.full(len(vertices), np.inf)
+    for loop, t in zip(loops, tubes, strict=True):
+        starts, ends, _ = closed_loop_segments([loop])
+        field = np.minimum(field, segment_distance(vertices, starts, ends) - t)
+    return clip_by_field(vertices, faces, field)
 
 
 def _densify_loop(loop: np.ndarray, spacing: float) -> np.ndarray:
@@ -207,9 +216,11 @@ def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.ndarray], spacing: float,
-                     tube: float, strip_rows: int = 1) -> tuple[np.ndarray, np.ndarray, int]:
+                     tube: float | Sequence[float], strip_rows: int | Sequence[int] = 1
+                     ) -> tuple[np.ndarray, np.ndarray, int]:
     """Zips each loop of Γ (M_i, 3), densified to ``spacing``, to the border loop of the mesh that runs
-    along it (winds once around Γ's parameter, as holes in the surface do not, within 5 ``tube`` radii).
+    along it (winds once around Γ's parameter, as holes in the surface do not, within 5 ``tube`` radii; ``tube``
+    and ``strip_rows`` one value or one per loop).
 
     One such border is zipped whatever its direction. Among several (a cap or a second sheet beside the
     surface, see the module docstring) the one running with ``STOKES_WINDING`` is zipped (of several of
@@ -226,10 +237,12 @@ def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.nda
     piece_area = np.bincount(label, weights=triangle_areas(vertices, faces)) if len(faces) else np.zeros(0)
     vertex_piece = np.full(len(vertices), -1)
     vertex_piece[faces.reshape(-1)] = np.repeat(label, 3)
-    chosen: list[tuple[np.ndarray, np.ndarray]] = []  # (border, densified Γ loop)
+    tubes = np.broadcast_to(np.asarray(tube, np.float64), (len(loops),))
+    rows = np.broadcast_to(np.asarray(strip_rows, np.int64), (len(loops),))
+    chosen: list[tuple[np.ndarray, np.ndarray, int]] = []  # (border, densified Γ loop, strip rows)
     passed_over: list[np.ndarray] = []
-    for loop in loops:
-        windings = [_winding_if_along(vertices[b], loop, 5 * tube) for b in borders]
+    for loop, t, r in zip(loops, tubes, rows, strict=True):
+        windings = [_winding_if_along(vertices[b], loop, 5 * t) for b in borders]
         along = [(b, w) for b, w in zip(borders, windings, strict=True) if w is not None]
         pick = None
         if len(along) == 1:
@@ -244,8 +257,8 @@ def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.nda
             log.warning("Γ loop with %d vertices: %s of the cut border loops run along it; left open.",
                         len(loop), why)
             continue
-        chosen.append((pick, _densify_loop(loop, spacing)))
-    kept_pieces = {int(vertex_piece[b[0]]) for b, _ in chosen}
+        chosen.append((pick, _densify_loop(loop, spacing), int(r)))
+    kept_pieces = {int(vertex_piece[b[0]]) for b, _, _ in chosen}
     drop: list[int] = []
     if passed_over:
         drop = sorted({int(vertex_piece[b[0]]) for b in passed_over} - kept_pieces)
@@ -263,8 +276,8 @@ def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.nda
     if drop:
         faces = faces[~np.isin(label, drop)]
     new_v, new_f = [vertices], [faces]
-    for border, dense in chosen:
-        added_v, added_f = zip_to_loop(np.concatenate(new_v), border, dense, strip_rows)
+    for border, dense, r in chosen:
+        added_v, added_f = zip_to_loop(np.concatenate(new_v), border, dense, r)
         new_v.append(added_v)
         new_f.append(added_f)
     return np.concatenate(new_v), np.concatenate(new_f), len(chosen)

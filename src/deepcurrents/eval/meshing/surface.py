@@ -33,11 +33,11 @@ from skimage.measure import marching_cubes
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.device import device_of, require_memory
 from deepcurrents.eval.level_sets import reads_level_sets
-from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
+from deepcurrents.eval.meshing.border import _face_components, close_onto_loops, cut_tube
 from deepcurrents.eval.meshing.level_set import LevelSetMethod
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.eval.meshing.phase import PhaseMethod
-from deepcurrents.geometry.polyline import closed_loop_segments, loop_gap, segment_distance
+from deepcurrents.geometry.polyline import closed_loop_segments, loop_gaps, segment_distance
 from deepcurrents.geometry.topology import border_edges
 
 log = logging.getLogger(__name__)
@@ -177,6 +177,7 @@ class MeshSettings:
     chunk_size: int = 1 << 16
     resolution_key: str = "resolution"
     closed_on: tuple[np.ndarray, np.ndarray] | None = None
+    weak_share: float = 0.0
 
 
 @dataclass
@@ -209,6 +210,7 @@ def extract_surface(
     refine_aliased: bool = True,
     said: set | None = None,
     closed_on: tuple[np.ndarray, np.ndarray] | None = None,
+    weak_share: float = 0.0,
 ) -> MeshingResult:
     """The surface of a 3D current as a triangle mesh whose border lies on Γ (see the module docstring).
 
@@ -241,11 +243,13 @@ def extract_surface(
         closed_on: a reconstruction's target (vertices (V, 3), faces (F, 3)): closed pieces of the mesh that lie on
             it (median within two voxels) are kept, where others are dropped as bubbles (a cavity of the target
             whose opening the grid cannot resolve comes out closed).
+        weak_share: > 0 (beyond the paper): regions whose |ω| is under this share of the median face's and that
+            reach the tube around Γ are dropped (``_drop_weak_caps``: caps across Γ's openings); 0: off.
     """
     if method not in METHODS:
         raise ValueError(f"method={method!r} must be one of {MESH_METHODS} (resolve 'auto' with mesh_method).")
     settings = MeshSettings(resolution, delta, boundary_tube, newton_steps, min_component, min_alignment,
-                            close_boundary, method, strip_rows, chunk_size, resolution_key, closed_on)
+                            close_boundary, method, strip_rows, chunk_size, resolution_key, closed_on, weak_share)
     options = {"level_blend": level_blend} if method == "level_set" else {}
     loops = [lp.detach().cpu().double().numpy() for lp in current.loops]
     bounds = mesh_region(loops, {"bounds": bounds, "padding": padding})
@@ -302,37 +306,40 @@ def _say_widened_tube(settings: MeshSettings, voxel: float, tube: float, said: s
 LOOP_GAP_SHARE = 0.4
 
 
-def _tube_radius(s: MeshSettings, voxel: float, gap: float, said: set | None) -> float:
-    """τ: ``boundary_tube``, at least 1.5 voxels, and at most ``LOOP_GAP_SHARE`` of the gap between two loops of Γ,
-    even where that is under 1.5 voxels (said once: such a grid, which could not be refined, places those loops'
-    borders less well; joined holes would be worse), but not under half a voxel: loops that touch at the grid's
-    scale (or truly touch) keep the whole tube, said once too."""
+def _tube_radii(s: MeshSettings, voxel: float, gaps: np.ndarray, said: set | None) -> np.ndarray:
+    """τ_i for each loop of Γ: ``boundary_tube``, at least 1.5 voxels, and at most ``LOOP_GAP_SHARE`` of the gap from
+    loop i to its nearest other loop, even where that is under 1.5 voxels (said once: such a grid, which could not be
+    refined enough, places those loops' borders less well; joined holes would be worse), but not under half a voxel:
+    loops that touch at the grid's scale (or truly touch) keep the whole tube, said once too. Loops far from the
+    others keep the whole tube. gaps (L,) → (L,)."""
     tube = max(s.boundary_tube, 1.5 * voxel)
-    if tube <= LOOP_GAP_SHARE * gap:
-        return tube
-    narrowed = LOOP_GAP_SHARE * gap
-    if narrowed < 0.5 * voxel:
+    narrowed = LOOP_GAP_SHARE * np.asarray(gaps, np.float64)
+    tubes = np.minimum(tube, narrowed)
+    touching = narrowed < 0.5 * voxel
+    tubes[touching] = tube
+    gap = float(np.min(gaps)) if len(gaps) else np.inf
+    if touching.any():
         why = f"Two loops of Γ come within {gap:.3g}, under a cell of the {s.resolution_key}={s.resolution} grid: " \
               "the boundary tube cannot keep their holes apart there"
-    elif narrowed < 1.5 * voxel:
-        why = (f"Two loops of Γ are {gap:.3g} apart, so the boundary tube is {narrowed:.3g}, under 1.5 cells of the "
-               f"{s.resolution_key}={s.resolution} grid, to keep their holes apart; a finer {s.resolution_key} places "
-               "their borders better")
+    elif (tubes < 1.5 * voxel).any():
+        why = (f"Two loops of Γ are {gap:.3g} apart, so their boundary tube is {tubes.min():.3g}, under 1.5 cells of "
+               f"the {s.resolution_key}={s.resolution} grid, to keep their holes apart; a finer {s.resolution_key} "
+               "places their borders better")
     else:
-        return narrowed
+        return tubes
     if said is None or "gap" not in said:
         log.warning("%s.", why)
         if said is not None:
             said.add("gap")
-    return tube if narrowed < 0.5 * voxel else narrowed
+    return tubes
 
 
 def _resolution_for_gap(bounds: np.ndarray, s: MeshSettings, voxel: float, gap: float) -> int | None:
     """The resolution whose cells make 1.5 of them fit in ``LOOP_GAP_SHARE`` of the loops' gap, where this grid's do
-    not, that is at most twice this one and fits in memory; else None."""
-    if 1.5 * voxel <= LOOP_GAP_SHARE * gap or not np.isfinite(gap) or 1.5 * voxel > 2 * LOOP_GAP_SHARE * gap:
+    not, at most twice this one (as fine as that where more is needed) and fitting in memory; else None."""
+    if 1.5 * voxel <= LOOP_GAP_SHARE * gap or not np.isfinite(gap):
         return None
-    finer = math.ceil(s.resolution * 1.5 * voxel / (LOOP_GAP_SHARE * gap))
+    finer = min(2 * s.resolution, math.ceil(s.resolution * 1.5 * voxel / (LOOP_GAP_SHARE * gap)))
     try:
         grid_shape(bounds, finer, s.resolution_key)  # the memory check only
     except ConfigError:
@@ -346,13 +353,15 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
     with ``refine``, asks for a finer grid (``_Refine``) where this one is too coarse and a finer one fits."""
     s = settings
     nodes, shape, voxel = _grid(bounds, s.resolution, s.resolution_key)
-    gap = loop_gap(loops) if s.close_boundary and len(loops) > 1 else np.inf
+    gaps = loop_gaps(loops) if s.close_boundary else np.full(len(loops), np.inf)
+    gap = float(gaps.min()) if len(gaps) else np.inf
     if refine and (finer := _resolution_for_gap(bounds, s, voxel, gap)) is not None:
         return _Refine(f"Two loops of Γ are {gap:.3g} apart, under 3.75 cells",
                        "would leave their holes joined by the tube", finer)
     dev = device_of(current)
     vol, level = finder.sample(torch.as_tensor(nodes, dtype=torch.float32, device=dev), shape, loops, voxel)
-    tube = _tube_radius(s, voxel, gap, said) if s.close_boundary else 0.0
+    tubes = _tube_radii(s, voxel, gaps, said) if s.close_boundary else np.zeros(len(loops))
+    tube = float(tubes.max()) if len(tubes) else 0.0  # the widest, for the checks that need one radius
     aliased = getattr(finder, "aliased_points", None)
     if refine and aliased is not None and len(aliased):
         starts, ends, _ = closed_loop_segments(loops)  # next to Γ Ω/2 turns fast anyway, and the tube is cut
@@ -377,13 +386,14 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
     faces = faces.reshape(-1, 3).astype(np.int64)
     if tube > 0:
         before = len(faces)
-        verts, faces = cut_tube(verts, faces, loops, tube)
+        verts, faces = cut_tube(verts, faces, loops, tubes)
         if before and not len(faces):  # not the current's fault: say which setting removed the surface
             log.warning("The boundary tube (radius %.3g about Γ) holds the whole level set: the mesh is empty; %s.",
                         tube, f"raise {s.resolution_key} (the tube is 1.5 cells wide)" if widened
                         else "lower boundary_tube")
             return empty
-    verts, faces, closed_area = _faces_carrying_the_current(current, finder, verts, faces, tube, s, voxel)
+    verts, faces, closed_area = _faces_carrying_the_current(current, finder, verts, faces, tube, s, voxel, loops,
+                                                            tubes if tube > 0 else None)
     if len(faces) == 0:
         log.warning("No part of the surface carries the current (|ω| ≥ %.3g); the mesh is empty.", s.delta)
         return empty
@@ -399,8 +409,9 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
         faces = faces[:, ::-1].copy()
     zipped = 0
     if tube > 0:
-        rows = s.strip_rows if s.strip_rows is not None else 1 if s.method == "phase" else max(1, round(tube / voxel))
-        verts, faces, zipped = close_onto_loops(verts, faces, loops, voxel, tube, rows)
+        rows = (s.strip_rows if s.strip_rows is not None else 1 if s.method == "phase"
+                else np.maximum(1, np.round(tubes / voxel)).astype(np.int64))
+        verts, faces, zipped = close_onto_loops(verts, faces, loops, voxel, tubes, rows)
     mesh = trimesh.Trimesh(verts, faces, process=True)
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
@@ -412,8 +423,35 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
     return MeshingResult(mesh, finder.reported_level, zipped, closed_area)
 
 
+def _drop_weak_caps(verts: np.ndarray, faces: np.ndarray, strength: np.ndarray, loops: list[np.ndarray],
+                    tubes: np.ndarray, voxel: float, share: float) -> np.ndarray:
+    """The faces without the caps across Γ's openings: connected regions of faces whose |ω| is under ``share`` of
+    the median |ω| of the mesh's faces and that reach the cut tube around Γ. A level set of f spans each opening
+    of Γ with a cap where f does not cancel α there exactly (two close loops: a torso's hips), and such a cap carries
+    a fraction of the sheet's current; weak regions inside the surface (a thin fingertip) are kept, as holes there
+    would tear it. verts (V, 3), faces (F, 3), strength (F,) → faces (F', 3)."""
+    weak = strength < share * np.median(strength) if len(faces) else np.zeros(0, bool)
+    if not weak.any():
+        return faces
+    weak_faces = faces[weak]
+    label = _face_components(weak_faces, len(verts))
+    reach = np.zeros(len(verts), bool)
+    for loop, t in zip(loops, tubes, strict=True):
+        starts, ends, _ = closed_loop_segments([loop])
+        reach |= segment_distance(verts, starts, ends) < t + 1.5 * voxel
+    at_tube = np.zeros(label.max() + 1, bool)
+    np.logical_or.at(at_tube, np.repeat(label, 3), reach[weak_faces.reshape(-1)])
+    drop = np.zeros(len(faces), bool)
+    drop[np.flatnonzero(weak)[at_tube[label]]] = True
+    if drop.any():
+        log.info("Dropped %d weak faces (|ω| under %.2g of the median) that reach Γ's tube: caps across its openings.",
+                 int(drop.sum()), share)
+    return faces[~drop]
+
+
 def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, faces: np.ndarray, tube: float,
-                                s: MeshSettings, voxel: float) -> tuple[np.ndarray, np.ndarray, float]:
+                                s: MeshSettings, voxel: float, loops: list[np.ndarray] | None = None,
+                                tubes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
     """Step 3 of the module docstring: the faces whose centroid has |ω| ≥ δ (and, with a tube, that the method
     says carry the current), without specks and, with a tube, without closed bubbles; unused vertices dropped.
     → (vertices, faces, the closed bubbles' area)."""
@@ -421,10 +459,15 @@ def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, 
     if len(faces):
         centroids = torch.as_tensor(verts[faces].mean(1), dtype=torch.float32, device=device_of(current))
         _, omega = current.evaluate(centroids, s.chunk_size)
-        keep = omega.norm(dim=-1) >= s.delta
+        strength = omega.norm(dim=-1)
+        keep = strength >= s.delta
         if tube > 0 and s.min_alignment > -1:
             keep &= finder.keep_carrying(centroids, omega, s.min_alignment)
-        faces = _drop_small_components(verts, faces[keep.cpu().numpy()], s.min_component)
+        keep = keep.cpu().numpy()
+        faces = faces[keep]
+        if tubes is not None and s.weak_share > 0:
+            faces = _drop_weak_caps(verts, faces, strength.cpu().numpy()[keep], loops, tubes, voxel, s.weak_share)
+        faces = _drop_small_components(verts, faces, s.min_component)
         if tube > 0:
             faces, closed_area = _drop_closed_components(verts, faces, s.closed_on, 2.0 * voxel)
             if closed_area > 0:
