@@ -26,12 +26,14 @@ $(ANNY_STAMP): $(STAMP)
 	touch $(ANNY_STAMP)
 
 # human-part datasets, offline: data/anny/<heads|hands|forearms|arms|torsos|feet>/NNN.ply (100 bodies), and
-# whole bodies cut into parts that share their loops, data/anny/bodies/NNN/ (experiment=stitched_body)
+# whole bodies cut into parts that share their loops, data/anny/bodies/NNN/ (experiment=stitched_body), and hands
+# and forearms joined at the wrist in each body's wrist frame, data/anny/joined/wrist.L/ (families generated together)
 DATA_BODIES ?= 100
 DATA_WHOLE_BODIES ?= 4
+DATA_JOINED ?= 8
 data: $(ANNY_STAMP)
 	$(BIN)/python -m deepcurrents.cli.make_dataset --source anny --num $(DATA_BODIES) \
-		--whole-bodies $(DATA_WHOLE_BODIES) --out data
+		--whole-bodies $(DATA_WHOLE_BODIES) --joined-parts $(DATA_JOINED) --out data
 
 # the quick start: the trefoil's minimal surface, 1500 steps of preset=cpu with the fast recipe (recipe=sharp);
 # `make run RUN_RECIPE=` runs preset=cpu alone, `make run RUN_RECIPE= RUN_STEPS=3000` the preset's whole budget

@@ -3,6 +3,8 @@ the cuts must lie is known exactly), then Anny's 14 parts written and read back.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -100,6 +102,20 @@ def test_anny_whole_bodies_from_the_command_line(tmp_path):
         main(["--source", "faust", "--whole-bodies", "1", "--faust-root", str(tmp_path), "--out", str(tmp_path)])
 
 
+def test_anny_joined_parts_from_the_command_line_are_two_families(tmp_path):
+    from deepcurrents.data.family import family_files, load_family
+
+    main(["--source", "anny", "--joined-parts", "2", "--joint", "elbow.R", "--categories", "--out", str(tmp_path)])
+    folder = tmp_path / "anny" / "joined" / "elbow.R"
+    forearms = load_family(family_files(folder / "forearm.R"))
+    upperarms = load_family(family_files(folder / "upperarm.R"))
+    assert len(forearms) == 2 and [len(m.loops) for m in forearms] == [2, 2]
+    assert [len(m.loops) for m in upperarms] == [2, 2]
+    assert (folder / "curves" / "001" / "forearm.R.obj").is_file()
+    with pytest.raises(SystemExit):
+        main(["--source", "anny", "--joined-parts", "1", "--joint", "hip.L", "--out", str(tmp_path)])
+
+
 def test_moving_a_loop_carries_the_parts_below_and_deforms_the_one_above(tmp_path):
     from deepcurrents.data.body_edit import LoopMove, move_loop, parts_below
 
@@ -133,3 +149,37 @@ def test_moving_a_loop_carries_the_parts_below_and_deforms_the_one_above(tmp_pat
     np.testing.assert_array_equal(moved[torso], body.body_vertices[torso])
     with pytest.raises(DatasetError, match="has no loop 'elbow'; its loops are shoulder, wrist"):
         move_loop(body, "elbow", move)
+
+
+def test_joined_families_are_two_parts_in_each_bodys_joint_frame_sharing_the_joint_loop(tmp_path):
+    """write_joined_families on the synthetic chain: the hand and the limb of each body in the frame of its wrist
+    (centroid at the origin, the shoulder's centroid at JOINED_HALF_LENGTH along +z), the wrist in both parts' curve
+    files as the same points, each part's border its curve; a body moved rigidly and scaled gives the same files."""
+    from scipy.spatial.transform import Rotation
+
+    from deepcurrents.data.body_partition import JOINED_HALF_LENGTH, write_joined_families
+    from deepcurrents.geometry.curves import load_boundary
+
+    verts, faces, weights, names, _ = synthetic_body()
+    verts = verts * [1.3, 1.0, 1.0]  # an elliptic wrist: its longest in-plane direction is x
+    partition = partition_body(verts, faces, weights, names, parts=CHAIN)
+    moved = 0.7 * verts @ Rotation.from_rotvec([0.1, -0.05, 0.08]).as_matrix().T + [0.3, -0.2, 1.0]
+    folder = write_joined_families(partition, [verts, moved], tmp_path, joint="wrist")
+    assert json.loads((folder / "frames.json").read_text())["child"] == "hand"
+    for i in ("000", "001"):
+        wrist = load_boundary(str(folder / "curves" / i / "wrist.obj")).loops[0]
+        np.testing.assert_allclose(wrist.mean(0), 0.0, atol=1e-6)
+        limb_loops = load_boundary(str(folder / "curves" / i / "limb.obj")).loops
+        shoulder = next(lp for lp in limb_loops if lp.mean(0)[2] > 0.1)
+        np.testing.assert_allclose(shoulder.mean(0), [0, 0, JOINED_HALF_LENGTH], atol=1e-6)
+        assert any(np.array_equal(lp, wrist) for lp in limb_loops)
+        np.testing.assert_array_equal(load_boundary(str(folder / "curves" / i / "hand.obj")).loops[0], wrist)
+        hand = trimesh.load(folder / "hand" / f"{i}.ply", process=False)
+        border = border_loops(np.asarray(hand.faces))
+        assert len(border) == 1
+        np.testing.assert_allclose(np.sort(hand.vertices[border[0]], 0), np.sort(wrist, 0), atol=1e-8)
+    for part in ("hand", "limb"):
+        a, b = (trimesh.load(folder / part / f"{i}.ply", process=False) for i in ("000", "001"))
+        np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-9)
+    with pytest.raises(DatasetError, match=r"^joint='shoulder': its parent torso must have exactly one other loop"):
+        write_joined_families(partition, [verts], tmp_path, joint="shoulder")

@@ -27,6 +27,7 @@ from deepcurrents.experiments.runner import build
 from deepcurrents.geometry import biot_savart, hopf_link
 from deepcurrents.geometry.correspondence import interpolate_loops, resample_loop
 from deepcurrents.geometry.curves import BoundaryError, read_curve_file, write_curve_file
+from deepcurrents.geometry.topology import border_loops
 from deepcurrents.nn.family import ConditionedCurrent, FamilyCurrent, pad_loops
 
 
@@ -845,3 +846,34 @@ def test_an_apps_padding_reaches_a_family_members_meshing_box(trained):
         assert float((bounds[1] - bounds[0]).max()) == pytest.approx(min(expected, 2.0), rel=1e-9)
         assert np.all(bounds[0] <= lo + 1e-12) and np.all(bounds[1] >= hi - 1e-12)
     assert not np.allclose(mesh_settings(module, 0)["bounds"], mesh_settings(module, 0, padding=0.0)["bounds"])
+
+
+@pytest.mark.slow
+def test_generation_with_a_neighbour_stitches_the_two_members_along_their_shared_loop(trained, family_dir, tmp_path):
+    """generate with neighbour_ckpt/neighbour_curve: two members (here two codes of one family) on boundaries that
+    share the rim are meshed and stitched along it: the stitched mesh uses the same seam vertices on both sides, on the
+    rim, and has no border left; boundaries that share no loop are refused in one sentence before any meshing."""
+    from deepcurrents.cli.generate import GenerateConfig, generate
+
+    out, _, _ = trained
+    ckpt = str(out / "checkpoints" / "last.ckpt")
+    rim = load_family([family_dir / "001_saddle.ply"])[0].loop_points()[0] * [1.1, 0.95, 1.0]
+    write_curve_file(tmp_path / "rim.obj", [rim])
+    write_curve_file(tmp_path / "other_rim.obj", [np.roll(rim[::-1], 7, 0)])  # the same loop, renumbered, reversed
+    report = generate(OmegaConf.structured(GenerateConfig(
+        ckpt_path=ckpt, curve=str(tmp_path / "rim.obj"), latent=1, resolution=32, out_dir=str(tmp_path / "gen"),
+        neighbour_ckpt=ckpt, neighbour_curve=str(tmp_path / "other_rim.obj"), neighbour_latent=2)))
+    for name in ("rim_latent1.ply", "rim_latent1_neighbour.ply", "rim_latent1_stitched.ply",
+                 "rim_latent1_stitched.png", "rim_latent1.json"):
+        assert (tmp_path / "gen" / name).is_file(), name
+    stitched = report["stitched"]
+    seam = stitched["seams"]["shared0"]
+    assert seam["stitched"] and seam["identical_on_both_sides"] and seam["distance_to_loop"] < 1e-9
+    mesh = trimesh.load(tmp_path / "gen" / "rim_latent1_stitched.ply", process=False)
+    assert stitched["border_edges"] == 0 and len(border_loops(np.asarray(mesh.faces))) == 0
+    assert report["neighbour"]["latent"] == 2
+    write_curve_file(tmp_path / "elsewhere.obj", [rim + [0.0, 0.0, 0.05]])
+    with pytest.raises(ConfigError, match=r"^curve='.*rim\.obj' and neighbour_curve='.*elsewhere\.obj' share no loop"):
+        generate(OmegaConf.structured(GenerateConfig(
+            ckpt_path=ckpt, curve=str(tmp_path / "rim.obj"), out_dir=str(tmp_path / "x"), neighbour_ckpt=ckpt,
+            neighbour_curve=str(tmp_path / "elsewhere.obj"))))

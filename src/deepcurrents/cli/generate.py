@@ -11,23 +11,39 @@ family's surfaces do.
 Writes ``<name>.ply`` (the surface, its border on the new Γ), ``<name>_boundary.obj`` (Γ as used),
 ``<name>.png`` and ``<name>.json`` (boundary_error, area, ...) into ``out_dir`` (default:
 ``<run>/checkpoints/last/generated`` beside the checkpoint), ``name`` defaulting to ``<curve stem>_latent<k>``.
+
+Two families that share a loop (a hand family and a forearm family trained on ``make data``'s joined parts,
+``data/anny/joined/wrist.L``) are generated together and stitched along it::
+
+    python -m deepcurrents.cli.generate ckpt_path=hands/…/last.ckpt curve=hand.L.obj latent=3 \
+        neighbour_ckpt=forearms/…/last.ckpt neighbour_curve=forearm.L.obj
+
+The loops the two curve files both hold (the wrist, to 1e-6 of the curves' size) are the seams; the neighbour is
+written as ``<name>_neighbour.*`` and the two as one mesh, ``<name>_stitched.ply`` and ``.png``, whose seam vertices
+lie on the shared loop and are used by both sides (the JSON's ``stitched``: border edges, manifold, seams).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import hydra
-from omegaconf import MISSING, DictConfig
+import numpy as np
+from omegaconf import MISSING, DictConfig, OmegaConf
 
 from deepcurrents.cli.common import plain_file_name, register_app, run_app
 from deepcurrents.cli.families import app_out_dir, load_for_app, mesh_and_measure, write_outputs
+from deepcurrents.data.body_edit import LoopMove
+from deepcurrents.data.human_parts import DatasetError
 from deepcurrents.errors import ConfigError
+from deepcurrents.eval.meshing.stitch import SharedLoop, stitch_parts
+from deepcurrents.experiments.stitched import draw_body, seam_report
 from deepcurrents.geometry.correspondence import align_loops
 from deepcurrents.geometry.curves import load_boundary
+from deepcurrents.geometry.meshes import write_mesh
 
 log = logging.getLogger("deepcurrents")
 
@@ -45,31 +61,110 @@ class GenerateConfig:
     resolution: int | None = None
     padding: float | None = None  # the meshed cube's margin, in [0, 1] (default: the run's evaluation.mesh.padding)
     device: str = "auto"
+    neighbour_ckpt: str | None = None  # a second family that shares a loop with this one: generated and stitched
+    neighbour_curve: str | None = None  # its boundary (holding the shared loop as ``curve`` does)
+    neighbour_latent: int | None = None  # its training shape's code (default: ``latent``)
+    # with a neighbour: the shared loop moved about its centroid before both are generated (as deepcurrents-edit-body)
+    rotate: float = 0.0  # degrees about ``axis``
+    axis: list[float] | None = None  # default: the loop's longest in-plane direction (a wrist's or elbow's hinge)
+    scale: float = 1.0  # the shared loop's own scale (curve_scale scales whole files)
+    translate: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
 register_app("generate", GenerateConfig, __doc__)
 
 
 def generate(cfg: DictConfig) -> dict[str, Any]:
-    """Meshes the family member (z_latent, Γ from the curve file). → the report written to <name>.json."""
+    """Meshes the family member (z_latent, Γ from the curve file), and with ``neighbour_ckpt`` the neighbour's member,
+    stitched to it along the loops they share. → the report written to <name>.json."""
     if not float(cfg.curve_scale) > 0:
         raise ConfigError(f"curve_scale={cfg.curve_scale} must be positive.")
     given = plain_file_name(cfg.name)
-    module = load_for_app(cfg)
-    k = module.check_shape_index(cfg.latent, "latent")
-    source = f"curve='{cfg.curve}'"
-    boundary = load_boundary(str(cfg.curve), scale=float(cfg.curve_scale), setting="curve")
-    loops = align_loops(boundary.loops, module.shape_loops(k), source)
-    name = given or f"{Path(str(cfg.curve)).stem}_latent{k}"
+    if (cfg.get("neighbour_ckpt") is None) != (cfg.get("neighbour_curve") is None):
+        raise ConfigError("neighbour_ckpt and neighbour_curve go together: the neighbour family and its boundary.")
+    move = LoopMove(float(cfg.rotate), None if cfg.axis is None else list(cfg.axis), float(cfg.scale),
+                    list(cfg.translate))
+    moved = move != LoopMove()
+    if moved and cfg.get("neighbour_ckpt") is None:
+        raise ConfigError("rotate, axis, scale and translate move the loop two members share; give neighbour_ckpt "
+                          "and neighbour_curve (or edit the curve file itself).")
+    name = given or f"{Path(str(cfg.curve)).stem}_latent{cfg.latent}"
     out_dir = app_out_dir(cfg, "generated")
-    rec = mesh_and_measure(module, module.latent(k), loops, [k], out_dir, name)
+    if cfg.get("neighbour_ckpt") is None:
+        rec, info = _member(cfg, _curve_loops(cfg, "curve"), "curve", "latent", out_dir, name)
+        report = write_outputs(out_dir, [rec], info, 1, f"{name}.png", f"{name}.json")
+        print(f"wrote {name}.ply, {name}.png and {name}.json to {out_dir} (boundary_error {rec['boundary_error']})")
+        return report
+    neighbour_cfg = OmegaConf.merge(cfg, {"ckpt_path": cfg.neighbour_ckpt, "curve": cfg.neighbour_curve,
+                                          "latent": cfg.latent if cfg.neighbour_latent is None
+                                          else cfg.neighbour_latent})
+    own, theirs = _curve_loops(cfg, "curve"), _curve_loops(neighbour_cfg, "neighbour_curve")
+    pairs = shared_loops(own, "curve", cfg.curve, theirs, cfg.neighbour_curve, "neighbour_curve")  # before meshing
+    if moved:  # the same similarity (about the loop's centroid) on both files' copies, which stay identical
+        try:
+            for i, j in pairs:
+                own[i], theirs[j] = move.apply(own[i], own[i]), move.apply(theirs[j], own[i])
+        except DatasetError as err:
+            raise ConfigError(str(err)) from None
+    loops = [SharedLoop(f"shared{i}", ("generated", "neighbour"), np.asarray(own[i], np.float64)) for i, _ in pairs]
+    rec, info = _member(cfg, own, "curve", "latent", out_dir, name)
+    other, other_info = _member(neighbour_cfg, theirs, "neighbour_curve", "neighbour_latent", out_dir,
+                                f"{name}_neighbour")
+    stitched = stitch_parts({"generated": rec["_mesh"], "neighbour": other["_mesh"]}, loops)
+    write_mesh(stitched.mesh, out_dir / f"{name}_stitched.ply")
+    draw_body(stitched, loops, out_dir / f"{name}_stitched.png")
+    summary = {"surface": stitched.topology.describe() if stitched.topology else "empty",
+               "border_edges": stitched.border_edges,
+               "manifold": bool(stitched.topology.manifold) if stitched.topology else False,
+               "seams": seam_report(stitched, loops), "open_loops": stitched.open_loops}
+    info = {**info, "neighbour": {**other_info, "boundary_error": other["boundary_error"]}, "stitched": summary}
+    report = write_outputs(out_dir, [rec, other], info, 2, f"{name}.png", f"{name}.json")
+    print(f"wrote {name}.ply, {name}_neighbour.ply, {name}_stitched.ply (and their pictures) and {name}.json to "
+          f"{out_dir} ({summary['surface']}, {summary['border_edges']} border edges)")
+    return report
+
+
+def _curve_loops(cfg: DictConfig, key: str) -> list[np.ndarray]:
+    """The loops of ``cfg.curve`` as read (``key``: the setting, for messages)."""
+    return load_boundary(str(cfg.curve), scale=float(cfg.curve_scale), setting=key).loops
+
+
+def _member(cfg: DictConfig, raw_loops: list[np.ndarray], curve_key: str, latent_key: str, out_dir: Path, stem: str
+            ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The family member of ``cfg`` on ``raw_loops`` (its curve's, the shared loop moved) meshed, measured and
+    written as ``<stem>.ply`` (its record, with its mesh and loops in memory) and what the report says of it; the
+    keys name the settings in messages."""
+    module = load_for_app(cfg)
+    k = module.check_shape_index(cfg.latent, latent_key)
+    loops = align_loops(raw_loops, module.shape_loops(k), f"{curve_key}='{cfg.curve}'")
+    rec = mesh_and_measure(module, module.latent(k), loops, [k], out_dir, stem)
     rec["title"] = f"boundary error {rec['boundary_error']:.2g}" if rec["boundary_error"] is not None \
         else "empty mesh"
     info = {"curve": str(cfg.curve), "latent": k, "latent_name": list(module.hparams.shape_names)[k],
             "ckpt_path": str(cfg.ckpt_path)}
-    report = write_outputs(out_dir, [rec], info, 1, f"{name}.png", f"{name}.json")
-    print(f"wrote {name}.ply, {name}.png and {name}.json to {out_dir} (boundary_error {rec['boundary_error']})")
-    return report
+    return rec, info
+
+
+def shared_loops(loops: list[np.ndarray], key: str, curve: str, other: list[np.ndarray], other_curve: str,
+                 other_key: str, tolerance: float = 1e-6) -> list[tuple[int, int]]:
+    """The loops that two boundaries both hold (the same points, in either direction, within ``tolerance`` of the
+    curves' size): (index in ``loops``, index in ``other``) each; ConfigError naming both files when they share none."""
+    size = float(np.ptp(np.concatenate([*loops, *other]), axis=0).max())
+    out = []
+    for i, a in enumerate(loops):
+        for j, b in enumerate(other):
+            if len(a) == len(b) and min(_cyclic_gap(a, b), _cyclic_gap(a, b[::-1])) <= tolerance * size:
+                out.append((i, j))
+                break
+    if not out:
+        raise ConfigError(f"{key}='{curve}' and {other_key}='{other_curve}' share no loop (the same points in both "
+                          "files), so the two members cannot be stitched; give both the loop they share.")
+    return out
+
+
+def _cyclic_gap(a: np.ndarray, b: np.ndarray) -> float:
+    """The largest distance between matched points of two closed polylines of equal size, over cyclic shifts."""
+    return min(float(np.abs(a - np.roll(b, -k, 0)).max()) for k in range(len(b)))
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="generate")

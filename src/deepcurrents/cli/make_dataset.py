@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from deepcurrents.cli.common import exit_on_user_error
-from deepcurrents.data.body_partition import anny_body_partition, write_body
+from deepcurrents.data.body_partition import BODY_PARTS, anny_body_partition, write_body, write_joined_families
 from deepcurrents.data.human_parts import CATEGORIES, DatasetError
 from deepcurrents.data.human_parts_builder import BORDERS, anny_parts, faust_parts, write_parts
 
@@ -45,14 +45,32 @@ def remove_stale_parts(folder: Path, count: int) -> list[Path]:
     return stale
 
 
+def write_joined(args: argparse.Namespace) -> None:
+    """``--joined-parts N``: the two parts that ``--joint`` joins, of N bodies of ``--seed``, in each body's joint
+    frame (``body_partition.write_joined_families``): two families that share their joint loop."""
+    partition, bodies = anny_body_partition(args.joined_parts, args.seed)
+    try:
+        folder = write_joined_families(partition, bodies, Path(args.out).expanduser() / "anny" / "joined", args.joint,
+                                       {"generator": "anny", "seed": args.seed})
+    except OSError as err:
+        raise DatasetError(f"--out='{args.out}': writing the joined parts failed ({err.strerror or type(err).__name__}"
+                           f"{': ' + str(err.filename) if err.filename else ''}).") from None
+    log.info("joined parts: %d bodies' parts at %s under %s", len(bodies), args.joint, folder)
+
+
 def build(args: argparse.Namespace) -> None:
     """Generates or reads the bodies, cuts their parts and writes them (a DatasetError for any bad input)."""
     check_out_dir(args.out)  # before minutes of generating
     if args.whole_bodies and args.source != "anny":
         raise DatasetError(f"--whole-bodies={args.whole_bodies} needs --source anny: whole bodies are cut from Anny's "
                            "skinning.")
+    if args.joined_parts and args.source != "anny":
+        raise DatasetError(f"--joined-parts={args.joined_parts} needs --source anny: the parts are cut from Anny's "
+                           "skinning.")
     if args.whole_bodies:
         write_bodies(args)
+    if args.joined_parts:
+        write_joined(args)
     if not args.categories:
         return
     if args.source == "anny":
@@ -109,9 +127,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--whole-bodies", type=int, default=0,
                         help="Anny: also write this many whole bodies cut into 14 parts that share their border loops "
                         "(OUT/anny/bodies/NNN/: body.ply, parts/*.ply, loops.json), for experiment=stitched_body")
+    parser.add_argument("--joined-parts", type=int, default=0,
+                        help="Anny: also write the two parts that --joint joins, of this many bodies, in each body's "
+                        "joint frame (OUT/anny/joined/JOINT/: two families sharing the loop, and their curves)")
+    limb_joints = [p.joint for p in BODY_PARTS if p.parent not in (None, "torso")]  # a parent with one other loop
+    parser.add_argument("--joint", default="wrist.L", choices=limb_joints,
+                        help="the loop of --joined-parts (default wrist.L: the hand and the forearm)")
     args = parser.parse_args(argv)
-    if not args.categories and not args.whole_bodies:  # `--categories` with no names: nothing would be written
-        parser.error(f"--categories needs at least one of {', '.join(CATEGORIES)} (or give --whole-bodies N).")
+    if not args.categories and not args.whole_bodies and not args.joined_parts:  # nothing would be written
+        parser.error(f"--categories needs at least one of {', '.join(CATEGORIES)} (or give --whole-bodies N or "
+                     "--joined-parts N).")
+    if args.joined_parts < 0:
+        parser.error(f"--joined-parts={args.joined_parts} must be at least 0 (the number of bodies).")
     if args.whole_bodies < 0:
         parser.error(f"--whole-bodies={args.whole_bodies} must be at least 0 (the number of whole bodies to write).")
     if args.source == "anny" and args.num < 1:

@@ -36,6 +36,7 @@ from scipy.sparse.csgraph import connected_components
 
 from deepcurrents.data.human_parts import DatasetError
 from deepcurrents.data.human_parts_builder import _pinched_vertices, _snap_values, _split_at_zero, largest_component
+from deepcurrents.geometry.curves import write_curve_file
 from deepcurrents.geometry.topology import border_loops, surface_topology
 
 
@@ -360,3 +361,66 @@ def read_body(folder: str | Path) -> StitchedBody:
         raise DatasetError(f"'{info_path}' gives the parts of {len(face_part)} faces; body.ply has {len(body.faces)}.")
     return StitchedBody(folder, np.asarray(body.vertices, np.float64), np.asarray(body.faces, np.int64), face_part,
                         parts, loops)
+
+
+# ---------------------------------------------------------------------- families of two parts joined at one loop
+
+JOINED_HALF_LENGTH = 0.45  # the parent's length from the joint in the joined frame (hand and forearm fit [-0.5, 0.5]³)
+
+
+def joint_frame(joint: np.ndarray, far: np.ndarray, side: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The frame in which two parts joined at ``joint`` (M, 3) are a family's shapes: the joint's centroid at the
+    origin, +z towards the centroid of the parent's other loop ``far`` (P, 3) at ``JOINED_HALF_LENGTH``, +x along the
+    joint's longest in-plane direction, turned to agree with ``side`` (3,), the same world direction for every body.
+    → (scale, rotation R (3, 3), origin (3,)): frame = R (world − origin) · scale."""
+    origin = joint.mean(0)
+    axis = far.mean(0) - origin
+    length = float(np.linalg.norm(axis))
+    z = axis / length
+    flat = (joint - origin) - np.outer((joint - origin) @ z, z)
+    x = np.linalg.svd(flat, full_matrices=False)[2][0]
+    x = x - (x @ z) * z
+    x = x / np.linalg.norm(x) * (1.0 if x @ side >= 0 else -1.0)
+    return JOINED_HALF_LENGTH / length, np.stack([x, np.cross(z, x), z]), origin
+
+
+def write_joined_families(partition: BodyPartition, bodies: Sequence[np.ndarray], root: str | Path,
+                          joint: str = "wrist.L", meta: dict | None = None) -> Path:
+    """Two families whose shapes share a loop: for each body, the two parts that ``joint`` joins (the hand and the
+    forearm at the wrist) in the body's ``joint_frame``, so a child family and a parent family can be trained apart,
+    generated for one (edited) joint and stitched there (``deepcurrents-generate neighbour_ckpt=…``).
+
+    Writes ``<root>/<joint>/<child>/NNN.ply`` and ``<parent>/NNN.ply`` (the families' meshes), ``curves/NNN/<part>.obj``
+    (each part's Γ in the frame, for ``generate curve=``), ``curves/NNN/<joint>.obj`` and ``frames.json`` (each body's
+    scale, rotation and origin: frame = R (body − origin) · scale). → the joint's folder."""
+    loops = {name: (child, parent, idx) for name, child, parent, idx in partition.loops}
+    if joint not in loops:
+        raise DatasetError(f"joint='{joint}' is not a loop of the partition ({', '.join(sorted(loops))}).")
+    child, parent, joint_idx = loops[joint]
+    far = [idx for name, (c, p, idx) in loops.items() if name != joint and parent in (c, p)]
+    if len(far) != 1:
+        raise DatasetError(f"joint='{joint}': its parent {parent} must have exactly one other loop (it has "
+                           f"{len(far)}).")
+    folder = Path(root) / joint
+    frames = {}
+    reference = None
+    for i, body in enumerate(bodies):
+        verts = np.asarray(partition.weights @ np.asarray(body, np.float64))
+        if reference is None:  # the first body's in-plane direction fixes x's sign for all
+            reference = joint_frame(verts[joint_idx], verts[far[0]], np.ones(3))[1][0]
+        scale, rotation, origin = joint_frame(verts[joint_idx], verts[far[0]], reference)
+        framed = (verts - origin) @ rotation.T * scale
+        for part in (child, parent):
+            used, faces = partition.part_faces(part)
+            (folder / part).mkdir(parents=True, exist_ok=True)
+            trimesh.Trimesh(framed[used], faces, process=False).export(folder / part / f"{i:03d}.ply")
+        curves = folder / "curves" / f"{i:03d}"
+        curves.mkdir(parents=True, exist_ok=True)
+        for part in (child, parent):
+            own = [idx for name, (c, p, idx) in loops.items() if part in (c, p)]
+            write_curve_file(curves / f"{part}.obj", [framed[idx] for idx in own])
+        write_curve_file(curves / f"{joint}.obj", [framed[joint_idx]])
+        frames[f"{i:03d}"] = {"scale": scale, "rotation": rotation.tolist(), "origin": origin.tolist()}
+    info = {"joint": joint, "child": child, "parent": parent, "frames": frames, **(meta or {})}
+    (folder / "frames.json").write_text(json.dumps(info, indent=1))
+    return folder
