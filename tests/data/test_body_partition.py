@@ -183,3 +183,36 @@ def test_joined_families_are_two_parts_in_each_bodys_joint_frame_sharing_the_joi
         np.testing.assert_allclose(a.vertices, b.vertices, atol=1e-9)
     with pytest.raises(DatasetError, match=r"^joint='shoulder': its parent torso must have exactly one other loop"):
         write_joined_families(partition, [verts], tmp_path, joint="shoulder")
+
+
+def test_a_faust_layout_is_cut_into_the_same_parts_along_its_eight_labels(tmp_path):
+    """FAUST's segmentation (eight labels, no sides) stands in for the skinning: a FAUST-style folder made from two
+    Anny bodies (their closed meshes, their parts' faces merged to the eight labels) is cut into the 14 parts and 13
+    shared loops; each face lands in the part it came from, away from the cuts (the borders move by the smoothing)."""
+    from deepcurrents.data.body_partition import FAUST_BODY_LABELS, anny_body_partition, faust_body_partition
+
+    partition, bodies = anny_body_partition(2, seed=3)
+    names = [p.name for p in partition.parts]
+    labels = np.array([FAUST_BODY_LABELS[n.split(".")[0]] for n in names])[partition.part]
+    (tmp_path / "meshes" / "train" / "faust").mkdir(parents=True)
+    (tmp_path / "segs" / "train" / "faust").mkdir(parents=True)
+    for i, body in enumerate(bodies):
+        verts = np.asarray(partition.weights @ body)
+        trimesh.Trimesh(verts, partition.faces, process=False).export(tmp_path / "meshes/train/faust" / f"tr_{i}.ply")
+    np.savetxt(tmp_path / "segs/train/faust/faust_corrected.txt", labels, fmt="%d")
+    faust, faust_bodies = faust_body_partition(tmp_path)
+    assert [p.name for p in faust.parts] == names and len(faust.loops) == 13 and len(faust_bodies) == 2
+    assert surface_topology(faust.faces).describe() == "a connected surface (genus 0, 0 border loops, χ = 2)"
+    # each new face's part against the part of the original face under its centroid
+    verts = np.asarray(partition.weights @ bodies[0])
+    new = np.asarray(faust.weights @ bodies[0])[faust.faces].mean(1)
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(verts[partition.faces].mean(1)).query(new)
+    agree = faust.part == partition.part[nearest]
+    assert agree.mean() > 0.9
+    for j, name in enumerate(names):  # both sides found: every part keeps most of its own faces
+        assert agree[partition.part[nearest] == j].mean() > 0.6, name
+    np.savetxt(tmp_path / "segs/train/faust/faust_corrected.txt", np.where(labels == 5, 11, labels), fmt="%d")
+    with pytest.raises(DatasetError, match=r"^FAUST label 11 is not one of the segmentation's eight"):
+        faust_body_partition(tmp_path)

@@ -872,6 +872,21 @@ def test_generation_with_a_neighbour_stitches_the_two_members_along_their_shared
     mesh = trimesh.load(tmp_path / "gen" / "rim_latent1_stitched.ply", process=False)
     assert stitched["border_edges"] == 0 and len(border_loops(np.asarray(mesh.faces))) == 0
     assert report["neighbour"]["latent"] == 2
+    # the shared loop turned by 20°: the member of ckpt_path is carried (its first mesh moved), the neighbour is
+    # generated for the turned loop, and the two still meet on it
+    from deepcurrents.data.body_edit import LoopMove
+
+    turned = generate(OmegaConf.structured(GenerateConfig(
+        ckpt_path=ckpt, curve=str(tmp_path / "rim.obj"), latent=1, resolution=32, out_dir=str(tmp_path / "turn"),
+        neighbour_ckpt=ckpt, neighbour_curve=str(tmp_path / "other_rim.obj"), neighbour_latent=2, rotate=20.0)))
+    first = trimesh.load(tmp_path / "gen" / "rim_latent1.ply", process=False)
+    carried = trimesh.load(tmp_path / "turn" / "rim_latent1.ply", process=False)
+    np.testing.assert_allclose(carried.vertices, LoopMove(rotate=20.0).apply(np.asarray(first.vertices), rim),
+                               atol=1e-6)
+    assert turned["stitched"]["border_edges"] == 0 and turned["stitched"]["seams"]["shared0"]["identical_on_both_sides"]
+    with pytest.raises(ConfigError, match=r"^rotate, axis, scale and translate move the loop two members share"):
+        generate(OmegaConf.structured(GenerateConfig(ckpt_path=ckpt, curve=str(tmp_path / "rim.obj"), rotate=5.0,
+                                                     out_dir=str(tmp_path / "x"))))
     write_curve_file(tmp_path / "elsewhere.obj", [rim + [0.0, 0.0, 0.05]])
     with pytest.raises(ConfigError, match=r"^curve='.*rim\.obj' and neighbour_curve='.*elsewhere\.obj' share no loop"):
         generate(OmegaConf.structured(GenerateConfig(

@@ -21,6 +21,10 @@ Two families that share a loop (a hand family and a forearm family trained on ``
 The loops the two curve files both hold (the wrist, to 1e-6 of the curves' size) are the seams; the neighbour is
 written as ``<name>_neighbour.*`` and the two as one mesh, ``<name>_stitched.ply`` and ``.png``, whose seam vertices
 lie on the shared loop and are used by both sides (the JSON's ``stitched``: border edges, manifold, seams).
+``rotate`` (degrees about ``axis``, default the loop's longest in-plane direction), ``scale`` and ``translate`` move
+the shared loop about its centroid first, in both files alike. With ``carry=true`` (the default, as
+``deepcurrents-edit-body``'s) the member of ``ckpt_path``, the part beyond the loop, is generated on its own loop and
+moved with it; the neighbour is generated for the moved loop. ``carry=false`` generates both for the moved loop.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from typing import Any
 
 import hydra
 import numpy as np
+import trimesh
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from deepcurrents.cli.common import plain_file_name, register_app, run_app
@@ -42,8 +47,9 @@ from deepcurrents.errors import ConfigError
 from deepcurrents.eval.meshing.stitch import SharedLoop, stitch_parts
 from deepcurrents.experiments.stitched import draw_body, seam_report
 from deepcurrents.geometry.correspondence import align_loops
-from deepcurrents.geometry.curves import load_boundary
+from deepcurrents.geometry.curves import load_boundary, write_curve_file
 from deepcurrents.geometry.meshes import write_mesh
+from deepcurrents.geometry.topology import consistently_oriented
 
 log = logging.getLogger("deepcurrents")
 
@@ -69,6 +75,8 @@ class GenerateConfig:
     axis: list[float] | None = None  # default: the loop's longest in-plane direction (a wrist's or elbow's hinge)
     scale: float = 1.0  # the shared loop's own scale (curve_scale scales whole files)
     translate: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    carry: bool = True  # the member of ``ckpt_path`` (the part beyond the loop: the hand) moves with the loop as it
+    # is (generated on its own loop, then moved); false: it is generated for the moved loop too
 
 
 register_app("generate", GenerateConfig, __doc__)
@@ -100,6 +108,12 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
                                           else cfg.neighbour_latent})
     own, theirs = _curve_loops(cfg, "curve"), _curve_loops(neighbour_cfg, "neighbour_curve")
     pairs = shared_loops(own, "curve", cfg.curve, theirs, cfg.neighbour_curve, "neighbour_curve")  # before meshing
+    carry = moved and bool(cfg.carry)
+    if carry and len(pairs) > 1:
+        raise ConfigError(f"carry=true moves the member of ckpt_path with the loop it shares, but the curves share "
+                          f"{len(pairs)} loops; give carry=false to generate both members for the moved loops.")
+    pivot = own[pairs[0][0]].copy()
+    unmoved = list(own)
     if moved:  # the same similarity (about the loop's centroid) on both files' copies, which stay identical
         try:
             for i, j in pairs:
@@ -107,7 +121,9 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
         except DatasetError as err:
             raise ConfigError(str(err)) from None
     loops = [SharedLoop(f"shared{i}", ("generated", "neighbour"), np.asarray(own[i], np.float64)) for i, _ in pairs]
-    rec, info = _member(cfg, own, "curve", "latent", out_dir, name)
+    rec, info = _member(cfg, unmoved if carry else own, "curve", "latent", out_dir, name)
+    if carry:  # the member as generated on its own loops, moved by the similarity (a similarity maps it exactly)
+        _carry(rec, move, pivot, out_dir, name)
     other, other_info = _member(neighbour_cfg, theirs, "neighbour_curve", "neighbour_latent", out_dir,
                                 f"{name}_neighbour")
     stitched = stitch_parts({"generated": rec["_mesh"], "neighbour": other["_mesh"]}, loops)
@@ -116,12 +132,30 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
     summary = {"surface": stitched.topology.describe() if stitched.topology else "empty",
                "border_edges": stitched.border_edges,
                "manifold": bool(stitched.topology.manifold) if stitched.topology else False,
+               "consistently_oriented": consistently_oriented(np.asarray(stitched.mesh.faces)),
                "seams": seam_report(stitched, loops), "open_loops": stitched.open_loops}
     info = {**info, "neighbour": {**other_info, "boundary_error": other["boundary_error"]}, "stitched": summary}
     report = write_outputs(out_dir, [rec, other], info, 2, f"{name}.png", f"{name}.json")
     print(f"wrote {name}.ply, {name}_neighbour.ply, {name}_stitched.ply (and their pictures) and {name}.json to "
           f"{out_dir} ({summary['surface']}, {summary['border_edges']} border edges)")
     return report
+
+
+def _carry(rec: dict[str, Any], move: LoopMove, pivot: np.ndarray, out_dir: Path, stem: str) -> None:
+    """Moves a generated member (its mesh, loops and lengths) by ``move`` about ``pivot`` (M, 3) and rewrites its
+    files."""
+    mesh = rec["_mesh"]
+    if len(mesh.vertices):
+        mesh = trimesh.Trimesh(move.apply(np.asarray(mesh.vertices), pivot), np.asarray(mesh.faces), process=False)
+    rec["_mesh"], rec["_loops"] = mesh, [move.apply(lp, pivot) for lp in rec["_loops"]]
+    for key in ("mesh_area", "mesh_closed_area_dropped"):
+        if rec.get(key) is not None:
+            rec[key] *= move.scale ** 2
+    if rec.get("boundary_error") is not None:
+        rec["boundary_error"] *= move.scale
+    write_mesh(mesh, out_dir / f"{stem}.ply")
+    write_curve_file(out_dir / f"{stem}_boundary.obj", rec["_loops"])
+    rec["carried"] = True
 
 
 def _curve_loops(cfg: DictConfig, key: str) -> list[np.ndarray]:

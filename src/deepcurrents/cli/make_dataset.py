@@ -13,7 +13,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from deepcurrents.cli.common import exit_on_user_error
-from deepcurrents.data.body_partition import BODY_PARTS, anny_body_partition, write_body, write_joined_families
+from deepcurrents.data.body_partition import (
+    BODY_PARTS,
+    anny_body_partition,
+    faust_body_partition,
+    write_body,
+    write_joined_families,
+)
 from deepcurrents.data.human_parts import CATEGORIES, DatasetError
 from deepcurrents.data.human_parts_builder import BORDERS, anny_parts, faust_parts, write_parts
 
@@ -61,9 +67,6 @@ def write_joined(args: argparse.Namespace) -> None:
 def build(args: argparse.Namespace) -> None:
     """Generates or reads the bodies, cuts their parts and writes them (a DatasetError for any bad input)."""
     check_out_dir(args.out)  # before minutes of generating
-    if args.whole_bodies and args.source != "anny":
-        raise DatasetError(f"--whole-bodies={args.whole_bodies} needs --source anny: whole bodies are cut from Anny's "
-                           "skinning.")
     if args.joined_parts and args.source != "anny":
         raise DatasetError(f"--joined-parts={args.joined_parts} needs --source anny: the parts are cut from Anny's "
                            "skinning.")
@@ -100,9 +103,16 @@ def build(args: argparse.Namespace) -> None:
 def write_bodies(args: argparse.Namespace) -> None:
     """``--whole-bodies N``: N bodies of ``--seed`` (random phenotypes and mild poses, as for the parts), each
     partitioned."""
-    partition, bodies = anny_body_partition(args.whole_bodies, args.seed)
-    root = Path(args.out).expanduser() / "anny" / "bodies"
-    meta = {"generator": "anny", "seed": args.seed}
+    if args.source == "faust":
+        if not args.faust_root:
+            raise DatasetError("--faust-root is required for --source faust.")
+        partition, bodies = faust_body_partition(args.faust_root)
+        bodies = bodies[:args.whole_bodies]
+        meta = {"generator": "faust", "root": str(args.faust_root)}
+    else:
+        partition, bodies = anny_body_partition(args.whole_bodies, args.seed)
+        meta = {"generator": "anny", "seed": args.seed}
+    root = Path(args.out).expanduser() / args.source / "bodies"
     try:
         for i, body in enumerate(bodies):
             write_body(partition, body, root / f"{i:03d}", {**meta, "index": i})
@@ -125,8 +135,9 @@ def main(argv: Sequence[str] | None = None) -> None:
                         help="smooth: cut along a level set of the skinning weights (FAUST: of the smoothed labels), "
                         "inside triangles; faces: along mesh edges, each face to its dominant bone (the former cut)")
     parser.add_argument("--whole-bodies", type=int, default=0,
-                        help="Anny: also write this many whole bodies cut into 14 parts that share their border loops "
-                        "(OUT/anny/bodies/NNN/: body.ply, parts/*.ply, loops.json), for experiment=stitched_body")
+                        help="also write this many whole bodies cut into 14 parts that share their border loops "
+                        "(OUT/SOURCE/bodies/NNN/: body.ply, parts/*.ply, loops.json), for experiment=stitched_body; "
+                        "Anny: cut along its skinning; FAUST: along its segmentation, the first N registrations")
     parser.add_argument("--joined-parts", type=int, default=0,
                         help="Anny: also write the two parts that --joint joins, of this many bodies, in each body's "
                         "joint frame (OUT/anny/joined/JOINT/: two families sharing the loop, and their curves)")

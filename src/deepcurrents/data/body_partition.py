@@ -390,9 +390,10 @@ def write_joined_families(partition: BodyPartition, bodies: Sequence[np.ndarray]
     forearm at the wrist) in the body's ``joint_frame``, so a child family and a parent family can be trained apart,
     generated for one (edited) joint and stitched there (``deepcurrents-generate neighbour_ckpt=…``).
 
-    Writes ``<root>/<joint>/<child>/NNN.ply`` and ``<parent>/NNN.ply`` (the families' meshes), ``curves/NNN/<part>.obj``
-    (each part's Γ in the frame, for ``generate curve=``), ``curves/NNN/<joint>.obj`` and ``frames.json`` (each body's
-    scale, rotation and origin: frame = R (body − origin) · scale). → the joint's folder."""
+    Writes ``<root>/<joint>/<child>/NNN.ply`` and ``<parent>/NNN.ply`` (the families' meshes),
+    ``curves/NNN/<part>.obj`` (each part's Γ in the frame, each loop as that part's border runs, for ``generate
+    curve=``), ``curves/NNN/<joint>.obj`` and ``frames.json`` (each body's scale, rotation and origin: frame =
+    R (body − origin) · scale). → the joint's folder."""
     loops = {name: (child, parent, idx) for name, child, parent, idx in partition.loops}
     if joint not in loops:
         raise DatasetError(f"joint='{joint}' is not a loop of the partition ({', '.join(sorted(loops))}).")
@@ -416,11 +417,68 @@ def write_joined_families(partition: BodyPartition, bodies: Sequence[np.ndarray]
             trimesh.Trimesh(framed[used], faces, process=False).export(folder / part / f"{i:03d}.ply")
         curves = folder / "curves" / f"{i:03d}"
         curves.mkdir(parents=True, exist_ok=True)
-        for part in (child, parent):
-            own = [idx for name, (c, p, idx) in loops.items() if part in (c, p)]
+        for part in (child, parent):  # each loop as the part's own border runs (a parent's against its child's)
+            own = [idx if c == part else idx[::-1] for name, (c, p, idx) in loops.items() if part in (c, p)]
             write_curve_file(curves / f"{part}.obj", [framed[idx] for idx in own])
         write_curve_file(curves / f"{joint}.obj", [framed[joint_idx]])
         frames[f"{i:03d}"] = {"scale": scale, "rotation": rotation.tolist(), "origin": origin.tolist()}
     info = {"joint": joint, "child": child, "parent": parent, "frames": frames, **(meta or {})}
     (folder / "frames.json").write_text(json.dumps(info, indent=1))
     return folder
+
+
+# ---------------------------------------------------------------------------------------------- FAUST
+
+# FAUST's segmentation labels of the body parts (the benchmark's eight; one label for both sides of a limb)
+FAUST_BODY_LABELS = {"head": 1, "hand": 2, "forearm": 3, "upperarm": 4, "torso": 5, "thigh": 6, "shin": 7, "foot": 8}
+
+
+def faust_face_parts(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                     parts: Sequence[BodyPart] = BODY_PARTS) -> np.ndarray:
+    """Each face's part (index into ``parts``) from FAUST's eight labels: a limb's faces go to the side (.L: towards
+    +x, as Anny's) of the line between the two hands' pieces, through the torso's centroid. vertices (V, 3), faces
+    (F, 3), labels (F,) → (F,); DatasetError for a label that is not one of the eight, or hands not in two pieces."""
+    unknown = sorted(set(np.unique(labels).tolist()) - set(FAUST_BODY_LABELS.values()))
+    if unknown:
+        raise DatasetError(f"FAUST label {unknown[0]} is not one of the segmentation's eight (1 head, 2 hand, "
+                           "3 forearm, 4 upper arm, 5 torso, 6 thigh, 7 shin, 8 foot).")
+    centres = vertices[faces].mean(1)
+    hand_faces = np.flatnonzero(labels == FAUST_BODY_LABELS["hand"])
+    pieces = connected_components(_vertex_graph(faces[hand_faces], len(vertices)), directed=False)[1]
+    piece = pieces[faces[hand_faces, 0]]
+    sizes = np.bincount(piece)
+    if (sizes > 0).sum() < 2:
+        raise DatasetError("FAUST's hand label must lie in two pieces (one hand on each side).")
+    a, b = np.argsort(sizes)[-2:]
+    lateral = centres[hand_faces[piece == a]].mean(0) - centres[hand_faces[piece == b]].mean(0)
+    lateral *= 1.0 if lateral[0] >= 0 else -1.0
+    side = np.where((centres - centres[labels == FAUST_BODY_LABELS["torso"]].mean(0)) @ lateral >= 0, "L", "R")
+    index = {p.name: j for j, p in enumerate(parts)}
+    out = np.empty(len(faces), np.int64)
+    for name, label in FAUST_BODY_LABELS.items():
+        hit = labels == label
+        if name in index:
+            out[hit] = index[name]
+        else:
+            for s in ("L", "R"):
+                out[hit & (side == s)] = index[f"{name}.{s}"]
+    return out
+
+
+def _vertex_graph(faces: np.ndarray, num_vertices: int) -> scipy.sparse.coo_matrix:
+    rows, cols = np.repeat(faces[:, 0], 2), faces[:, 1:].reshape(-1)
+    return scipy.sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_vertices, num_vertices))
+
+
+def faust_body_partition(root: str | Path) -> tuple[BodyPartition, list[np.ndarray]]:
+    """FAUST's registrations (``human_parts_builder.load_faust``: one closed topology) cut into the 14 parts: each
+    part's faces (``faust_face_parts``) smoothed onto the vertices as the single FAUST parts are
+    (``smooth_label_field``) stand in for the skinning weights, so each loop is the level set 1/2 of a subtree's
+    smoothed share, shared by both sides as for Anny. → (partition, bodies (V, 3) each)."""
+    from deepcurrents.data.human_parts_builder import load_faust, smooth_label_field
+
+    bodies, faces, labels = load_faust(root)
+    face_part = faust_face_parts(bodies[0], faces, labels)
+    weights = np.stack([smooth_label_field(faces, face_part == j, len(bodies[0])) for j in range(len(BODY_PARTS))], 1)
+    parts = tuple(BodyPart(p.name, rf"^{re.escape(p.name)}$", p.parent, p.joint) for p in BODY_PARTS)
+    return partition_body(bodies[0], faces, weights, [p.name for p in parts], parts=parts), bodies
