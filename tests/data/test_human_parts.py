@@ -386,7 +386,7 @@ def test_make_dataset_refuses_an_empty_category_list(tmp_path, capsys):
     message = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.value.code == 2
     assert message.endswith(f"error: --categories needs at least one of {', '.join(CATEGORIES)} (or give "
-                            "--whole-bodies N).")
+                            "--whole-bodies N or --joined-parts N).")
     assert not (tmp_path / "out").exists()
 
 

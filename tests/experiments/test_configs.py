@@ -15,8 +15,7 @@ from omegaconf import OmegaConf, open_dict
 
 from deepcurrents.errors import UserInputError
 from deepcurrents.experiments.config import validate_config
-from deepcurrents.experiments.runner import member_overrides
-from deepcurrents.experiments.runner import build, train
+from deepcurrents.experiments.runner import build, member_overrides, train
 
 CONF = Path(CONF_DIR)
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))

@@ -90,9 +90,11 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
     given = plain_file_name(cfg.name)
     if (cfg.get("neighbour_ckpt") is None) != (cfg.get("neighbour_curve") is None):
         raise ConfigError("neighbour_ckpt and neighbour_curve go together: the neighbour family and its boundary.")
-    move = LoopMove(float(cfg.rotate), None if cfg.axis is None else list(cfg.axis), float(cfg.scale),
-                    list(cfg.translate))
-    moved = move != LoopMove()
+    translate = [float(t) for t in cfg.translate]
+    if len(translate) != 3:
+        raise ConfigError(f"translate={list(cfg.translate)} must be three numbers [x, y, z].")
+    move = LoopMove(float(cfg.rotate), None if cfg.axis is None else list(cfg.axis), float(cfg.scale), translate)
+    moved = move.rotate != 0 or move.scale != 1 or any(t != 0 for t in translate)
     if moved and cfg.get("neighbour_ckpt") is None:
         raise ConfigError("rotate, axis, scale and translate move the loop two members share; give neighbour_ckpt "
                           "and neighbour_curve (or edit the curve file itself).")

@@ -337,8 +337,8 @@ def _tube_radii(s: MeshSettings, voxel: float, gaps: np.ndarray, said: set | Non
 def _resolution_for_gap(bounds: np.ndarray, s: MeshSettings, voxel: float, gap: float) -> int | None:
     """The resolution whose cells make 1.5 of them fit in ``LOOP_GAP_SHARE`` of the loops' gap, where this grid's do
     not, at most twice this one (as fine as that where more is needed) and fitting in memory; else None."""
-    if 1.5 * voxel <= LOOP_GAP_SHARE * gap or not np.isfinite(gap):
-        return None
+    if 1.5 * voxel <= LOOP_GAP_SHARE * gap or not np.isfinite(gap) or LOOP_GAP_SHARE * gap < 0.25 * voxel:
+        return None  # apart already, or touching even on a grid twice as fine (they keep the whole tube)
     finer = min(2 * s.resolution, math.ceil(s.resolution * 1.5 * voxel / (LOOP_GAP_SHARE * gap)))
     try:
         grid_shape(bounds, finer, s.resolution_key)  # the memory check only
