@@ -850,9 +850,10 @@ def test_an_apps_padding_reaches_a_family_members_meshing_box(trained):
 
 @pytest.mark.slow
 def test_generation_with_a_neighbour_stitches_the_two_members_along_their_shared_loop(trained, family_dir, tmp_path):
-    """generate with neighbour_ckpt/neighbour_curve: two members (here one family's shape 1, twice) on boundaries that
-    share the rim are meshed and stitched along it: the stitched mesh uses the same seam vertices on both sides, on the
-    rim, and has no border left along it; boundaries that share no loop are refused in one sentence before any meshing."""
+    """generate with neighbour_ckpt/neighbour_curve: two members (here one family's shape 1, twice) on boundaries
+    that share the rim are meshed and stitched along it: the stitched mesh uses the same seam vertices on both sides,
+    on the rim, and has no border left along it; boundaries that share no loop are refused in one sentence before any
+    meshing."""
     from deepcurrents.cli.generate import GenerateConfig, generate
 
     out, _, _ = trained
