@@ -109,7 +109,7 @@ def generate(cfg: DictConfig) -> dict[str, Any]:
                                           "latent": cfg.latent if cfg.neighbour_latent is None
                                           else cfg.neighbour_latent})
     own, theirs = _curve_loops(cfg, "curve"), _curve_loops(neighbour_cfg, "neighbour_curve")
-    pairs = shared_loops(own, "curve", cfg.curve, theirs, cfg.neighbour_curve, "neighbour_curve")  # before meshing
+    pairs = matching_loops(own, "curve", cfg.curve, theirs, cfg.neighbour_curve, "neighbour_curve")  # before meshing
     carry = moved and bool(cfg.carry)
     if carry and len(pairs) > 1:
         raise ConfigError(f"carry=true moves the member of ckpt_path with the loop it shares, but the curves share "
@@ -181,7 +181,7 @@ def _member(cfg: DictConfig, raw_loops: list[np.ndarray], curve_key: str, latent
     return rec, info
 
 
-def shared_loops(loops: list[np.ndarray], key: str, curve: str, other: list[np.ndarray], other_curve: str,
+def matching_loops(loops: list[np.ndarray], key: str, curve: str, other: list[np.ndarray], other_curve: str,
                  other_key: str, tolerance: float = 1e-6) -> list[tuple[int, int]]:
     """The loops that two boundaries both hold (the same points, in either direction, within ``tolerance`` of the
     curves' size): (index in ``loops``, index in ``other``) each; ConfigError naming both files when they share none."""

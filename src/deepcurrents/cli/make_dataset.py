@@ -51,6 +51,12 @@ def remove_stale_parts(folder: Path, count: int) -> list[Path]:
     return stale
 
 
+def writing_failed(out: str, what: str, err: OSError) -> DatasetError:
+    """The one sentence for an ``--out`` folder that could not take the files (full disk, no permission, …)."""
+    return DatasetError(f"--out='{out}': writing the {what} failed ({err.strerror or type(err).__name__}"
+                        f"{': ' + str(err.filename) if err.filename else ''}).")
+
+
 def write_joined(args: argparse.Namespace) -> None:
     """``--joined-parts N``: the two parts that ``--joint`` joins, of N bodies of ``--seed``, in each body's joint
     frame (``body_partition.write_joined_families``): two families that share their joint loop."""
@@ -59,8 +65,7 @@ def write_joined(args: argparse.Namespace) -> None:
         folder = write_joined_families(partition, bodies, Path(args.out).expanduser() / "anny" / "joined", args.joint,
                                        {"generator": "anny", "seed": args.seed})
     except OSError as err:
-        raise DatasetError(f"--out='{args.out}': writing the joined parts failed ({err.strerror or type(err).__name__}"
-                           f"{': ' + str(err.filename) if err.filename else ''}).") from None
+        raise writing_failed(args.out, "joined parts", err) from None
     log.info("joined parts: %d bodies' parts at %s under %s", len(bodies), args.joint, folder)
 
 
@@ -93,8 +98,7 @@ def build(args: argparse.Namespace) -> None:
                 names = stale[0].name if len(stale) == 1 else f"{stale[0].name} to {stale[-1].name}"
                 log.info("%s: removed %d part file(s) of an earlier, larger generation (%s)", folder, len(stale), names)
     except OSError as err:
-        raise DatasetError(f"--out='{args.out}': writing the parts failed ({err.strerror or type(err).__name__}"
-                           f"{': ' + str(err.filename) if err.filename else ''}).") from None
+        raise writing_failed(args.out, "parts", err) from None
     for name, (p, f, s) in parts.items():
         log.info("%s: %d meshes, %d faces each, scale %.4g", name, len(p), len(f), s)
     log.info("wrote %d meshes under %s/%s", len(files), args.out, args.source)
@@ -117,8 +121,7 @@ def write_bodies(args: argparse.Namespace) -> None:
         for i, body in enumerate(bodies):
             write_body(partition, body, root / f"{i:03d}", {**meta, "index": i})
     except OSError as err:
-        raise DatasetError(f"--out='{args.out}': writing the bodies failed ({err.strerror or type(err).__name__}"
-                           f"{': ' + str(err.filename) if err.filename else ''}).") from None
+        raise writing_failed(args.out, "bodies", err) from None
     log.info("bodies: %d whole bodies of %d parts and %d shared loops under %s", len(bodies), len(partition.parts),
              len(partition.loops), root)
 

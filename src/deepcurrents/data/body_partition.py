@@ -37,7 +37,7 @@ from scipy.sparse.csgraph import connected_components
 from deepcurrents.data.human_parts import DatasetError
 from deepcurrents.data.human_parts_builder import _pinched_vertices, _snap_values, _split_at_zero, largest_component
 from deepcurrents.geometry.curves import write_curve_file
-from deepcurrents.geometry.topology import border_loops, surface_topology
+from deepcurrents.geometry.topology import border_loops, face_components, surface_topology
 
 
 @dataclass(frozen=True)
@@ -444,8 +444,7 @@ def faust_face_parts(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray
                            "3 forearm, 4 upper arm, 5 torso, 6 thigh, 7 shin, 8 foot).")
     centres = vertices[faces].mean(1)
     hand_faces = np.flatnonzero(labels == FAUST_BODY_LABELS["hand"])
-    pieces = connected_components(_vertex_graph(faces[hand_faces], len(vertices)), directed=False)[1]
-    piece = pieces[faces[hand_faces, 0]]
+    piece = face_components(faces[hand_faces], len(vertices))
     sizes = np.bincount(piece)
     if (sizes > 0).sum() < 2:
         raise DatasetError("FAUST's hand label must lie in two pieces (one hand on each side).")
@@ -463,11 +462,6 @@ def faust_face_parts(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray
             for s in ("L", "R"):
                 out[hit & (side == s)] = index[f"{name}.{s}"]
     return out
-
-
-def _vertex_graph(faces: np.ndarray, num_vertices: int) -> scipy.sparse.coo_matrix:
-    rows, cols = np.repeat(faces[:, 0], 2), faces[:, 1:].reshape(-1)
-    return scipy.sparse.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_vertices, num_vertices))
 
 
 def faust_body_partition(root: str | Path) -> tuple[BodyPartition, list[np.ndarray]]:

@@ -115,6 +115,16 @@ class SurfaceTopology:
         return f"{name} ({facts})"
 
 
+def face_components(faces: np.ndarray, num_vertices: int) -> np.ndarray:
+    """The label of each face's connected component, faces sharing a vertex being connected. (F, 3) → (F,)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows, cols = np.repeat(faces[:, 0], 2), faces[:, 1:].reshape(-1)
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_vertices, num_vertices))
+    return connected_components(graph, directed=False)[1][faces[:, 0]]
+
+
 def consistently_oriented(faces: np.ndarray) -> bool:
     """Whether no directed edge is run by two faces: every edge with two faces is run in opposite directions by them.
     faces (F, 3)."""

@@ -24,11 +24,9 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from deepcurrents.geometry.polyline import closed_loop_segments, project_to_segments, segment_distance
-from deepcurrents.geometry.topology import border_loops
+from deepcurrents.geometry.topology import border_loops, face_components
 
 log = logging.getLogger(__name__)
 
@@ -91,9 +89,6 @@ def cut_tube(vertices: np.ndarray, faces: np.ndarray, loops: list[np.ndarray], t
     surface (``clip_by_field`` of min_i (distance to loop i − τ_i)); ``tube`` one radius or one per loop.
     → (vertices (V', 3), faces (F', 3))."""
     tubes = np.broadcast_to(np.asarray(tube, np.float64), (len(loops),))
-    if np.all(tubes == tubes[0]):
-        starts, ends, _ = closed_loop_segments(loops)
-        return clip_by_field(vertices, faces, segment_distance(vertices, starts, ends) - tubes[0])
     field = np.full(len(vertices), np.inf)
     for loop, t in zip(loops, tubes, strict=True):
         starts, ends, _ = closed_loop_segments([loop])
@@ -200,15 +195,6 @@ def zip_to_loop(vertices: np.ndarray, border: np.ndarray, loop: np.ndarray, rows
     return new_vertices, tris
 
 
-def _face_components(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """Label of each face's connected component (faces sharing a vertex are connected). faces (F, 3) → (F,)."""
-    rows = np.repeat(faces[:, 0], 2)
-    cols = faces[:, 1:].reshape(-1)
-    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_vertices, n_vertices))
-    _, vertex_label = connected_components(graph, directed=False)
-    return vertex_label[faces[:, 0]]
-
-
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Areas (F,) of triangles faces (F, 3) of vertices (V, 3)."""
     tri = vertices[faces]
@@ -233,7 +219,7 @@ def close_onto_loops(vertices: np.ndarray, faces: np.ndarray, loops: list[np.nda
     vertices (V, 3), faces (F, 3) → (vertices (V', 3), faces (F', 3), number of loops closed).
     """
     borders = border_loops(faces)
-    label = _face_components(faces, len(vertices)) if len(faces) else np.zeros(0, dtype=int)
+    label = face_components(faces, len(vertices)) if len(faces) else np.zeros(0, dtype=int)
     piece_area = np.bincount(label, weights=triangle_areas(vertices, faces)) if len(faces) else np.zeros(0)
     vertex_piece = np.full(len(vertices), -1)
     vertex_piece[faces.reshape(-1)] = np.repeat(label, 3)

@@ -33,12 +33,12 @@ from skimage.measure import marching_cubes
 from deepcurrents.errors import ConfigError
 from deepcurrents.eval.device import device_of, require_memory
 from deepcurrents.eval.level_sets import reads_level_sets
-from deepcurrents.eval.meshing.border import _face_components, close_onto_loops, cut_tube
+from deepcurrents.eval.meshing.border import close_onto_loops, cut_tube
 from deepcurrents.eval.meshing.level_set import LevelSetMethod
 from deepcurrents.eval.meshing.method import MeshMethod
 from deepcurrents.eval.meshing.phase import PhaseMethod
 from deepcurrents.geometry.polyline import closed_loop_segments, loop_gaps, segment_distance
-from deepcurrents.geometry.topology import border_edges
+from deepcurrents.geometry.topology import border_edges, face_components
 
 log = logging.getLogger(__name__)
 
@@ -392,8 +392,7 @@ def _mesh_once(current, finder: MeshMethod, loops: list[np.ndarray], bounds: np.
                         tube, f"raise {s.resolution_key} (the tube is 1.5 cells wide)" if widened
                         else "lower boundary_tube")
             return empty
-    verts, faces, closed_area = _faces_carrying_the_current(current, finder, verts, faces, tube, s, voxel, loops,
-                                                            tubes if tube > 0 else None)
+    verts, faces, closed_area = _faces_carrying_the_current(current, finder, verts, faces, loops, tubes, s, voxel)
     if len(faces) == 0:
         log.warning("No part of the surface carries the current (|ω| ≥ %.3g); the mesh is empty.", s.delta)
         return empty
@@ -434,7 +433,7 @@ def _drop_weak_caps(verts: np.ndarray, faces: np.ndarray, strength: np.ndarray, 
     if not weak.any():
         return faces
     weak_faces = faces[weak]
-    label = _face_components(weak_faces, len(verts))
+    label = face_components(weak_faces, len(verts))
     reach = np.zeros(len(verts), bool)
     for loop, t in zip(loops, tubes, strict=True):
         starts, ends, _ = closed_loop_segments([loop])
@@ -449,12 +448,13 @@ def _drop_weak_caps(verts: np.ndarray, faces: np.ndarray, strength: np.ndarray, 
     return faces[~drop]
 
 
-def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, faces: np.ndarray, tube: float,
-                                s: MeshSettings, voxel: float, loops: list[np.ndarray] | None = None,
-                                tubes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, faces: np.ndarray,
+                                loops: list[np.ndarray], tubes: np.ndarray, s: MeshSettings, voxel: float
+                                ) -> tuple[np.ndarray, np.ndarray, float]:
     """Step 3 of the module docstring: the faces whose centroid has |ω| ≥ δ (and, with a tube, that the method
-    says carry the current), without specks and, with a tube, without closed bubbles; unused vertices dropped.
-    → (vertices, faces, the closed bubbles' area)."""
+    says carry the current), without specks and, with a tube (``tubes`` (L,), each loop's; zeros: none), without
+    closed bubbles or weak caps; unused vertices dropped. → (vertices, faces, the closed bubbles' area)."""
+    tube = float(tubes.max()) if len(tubes) else 0.0
     closed_area = 0.0
     if len(faces):
         centroids = torch.as_tensor(verts[faces].mean(1), dtype=torch.float32, device=device_of(current))
@@ -465,7 +465,7 @@ def _faces_carrying_the_current(current, finder: MeshMethod, verts: np.ndarray, 
             keep &= finder.keep_carrying(centroids, omega, s.min_alignment)
         keep = keep.cpu().numpy()
         faces = faces[keep]
-        if tubes is not None and s.weak_share > 0:
+        if tube > 0 and s.weak_share > 0:
             faces = _drop_weak_caps(verts, faces, strength.cpu().numpy()[keep], loops, tubes, voxel, s.weak_share)
         faces = _drop_small_components(verts, faces, s.min_component)
         if tube > 0:
